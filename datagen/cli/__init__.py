@@ -1,0 +1,1 @@
+"""The ``datagen`` command line (typer)."""

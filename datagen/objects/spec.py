@@ -1,0 +1,69 @@
+"""What one line of an objects file names: the object, its options and its identity (PIPELINE.md 0)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+Units = Literal["auto", "m", "mm"]
+UpAxis = Literal["z", "y"]
+
+BUILTIN_PREFIX = "builtin:"
+
+
+@dataclass(frozen=True)
+class ObjectOptions:
+    """Options that change the prepared mesh, and so enter the object id."""
+
+    units: Units = "auto"
+    up: UpAxis = "z"
+    size: float | None = None
+    """Largest bounding-box extent in metres after preparation; None scales into ``size_range``."""
+
+    def canonical(self) -> str:
+        data: dict[str, Any] = {"units": self.units, "up": self.up, "size": self.size}
+        return json.dumps(data, sort_keys=True, separators=(",", ":"))
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One resolved object of an objects file."""
+
+    source: str
+    """Absolute mesh path, or ``builtin:NAME``."""
+    name: str
+    options: ObjectOptions
+    object_id: str
+    """sha256 hex of the mesh bytes (or the built-in's generator identity) and the canonical options."""
+    origin: str = ""
+    """Where it was listed: ``FILE:LINE`` (empty when made in code)."""
+    line: int = 0
+    generator: dict[str, Any] = field(default_factory=dict)
+    """For built-ins: generator name, parameters and version (what the id is made of)."""
+
+    @property
+    def is_builtin(self) -> bool:
+        return self.source.startswith(BUILTIN_PREFIX)
+
+    @property
+    def id_prefix(self) -> int:
+        """The first 16 hex digits of the object id as an integer (used in seeds and task ids)."""
+        return int(self.object_id[:16], 16)
+
+    def task_id(self, rotation: int) -> str:
+        return f"{self.object_id[:16]}-r{rotation}"
+
+
+def file_object_id(mesh_bytes: bytes, options: ObjectOptions) -> str:
+    digest = hashlib.sha256(mesh_bytes)
+    digest.update(b"\0" + options.canonical().encode())
+    return digest.hexdigest()
+
+
+def builtin_object_id(generator: dict[str, Any], options: ObjectOptions) -> str:
+    identity = json.dumps(generator, sort_keys=True, separators=(",", ":"))
+    digest = hashlib.sha256(b"builtin\0" + identity.encode())
+    digest.update(b"\0" + options.canonical().encode())
+    return digest.hexdigest()

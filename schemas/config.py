@@ -1,0 +1,169 @@
+"""`GenerationConfig`: everything that changes a sample, and its hash.
+
+The config defines a dataset. Two datasets with the same config hash, the same meshes and the same
+weights hold the same samples. Files the config names (a view-space file, later refiner weights)
+enter the hash by the sha256 of their content, never by their path, so moving a file keeps the hash.
+
+Defaults are those of the AIR-OSVP paper as fixed by ``design/PIPELINE.md``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+MAX_VIEWS = 64
+"""Cases are stored as one uint64 bit mask, so at most 64 candidate views."""
+
+BUILTIN_VIEW_SPACE = "builtin"
+GENERATED_VIEW_SPACE = "generated"
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+class CameraConfig(_Frozen):
+    """Pinhole intrinsics (the authors' RealSense values) and the sensor range.
+
+    Lens distortion is ignored on purpose: the authors' distortion code misassigns its
+    coefficients and applies them twice (README, differences from the paper).
+    """
+
+    width: int = Field(1280, ge=16, le=16384)
+    height: int = Field(720, ge=16, le=16384)
+    fx: PositiveFloat = 915.6066894531250
+    fy: PositiveFloat = 913.3266601562500
+    cx: float = 647.1453247070312
+    cy: float = 372.5153198242188
+    max_range: PositiveFloat = 1.0
+
+    @model_validator(mode="after")
+    def _principal_point_inside(self) -> CameraConfig:
+        if not (0 < self.cx < self.width):
+            raise ValueError(f"camera.cx = {self.cx} must lie inside the image: 0 < cx < width ({self.width})")
+        if not (0 < self.cy < self.height):
+            raise ValueError(f"camera.cy = {self.cy} must lie inside the image: 0 < cy < height ({self.height})")
+        return self
+
+
+class ViewSpaceConfig(_Frozen):
+    """Where the candidate views come from.
+
+    ``source`` is ``builtin`` (the authors' 32 Tammes positions), ``generated`` (a seeded spread of
+    ``count`` positions maximising the minimum angular separation) or the path of a view-space file
+    (first line the count, then ``x y z`` per line, metres). Positions are rescaled to ``radius``.
+    """
+
+    source: str = BUILTIN_VIEW_SPACE
+    count: int = Field(32, ge=1, le=MAX_VIEWS)
+    radius: PositiveFloat = 0.4
+    generator_seed: int = Field(0, ge=0)
+
+    @model_validator(mode="after")
+    def _builtin_has_32(self) -> ViewSpaceConfig:
+        if self.source == BUILTIN_VIEW_SPACE and self.count != 32:
+            raise ValueError(
+                f"view_space.count = {self.count} needs view_space.source = 'generated' or a file: "
+                "the built-in view space has exactly 32 views"
+            )
+        return self
+
+    @property
+    def is_file(self) -> bool:
+        return self.source not in (BUILTIN_VIEW_SPACE, GENERATED_VIEW_SPACE)
+
+
+class GenerationConfig(_Frozen):
+    """Every setting that changes a sample (hashed into every sample and into ``dataset.json``)."""
+
+    seed: int = Field(0, ge=0, lt=2**63)
+    # Section 0: keys
+    voxel_size: PositiveFloat = 0.002
+    grid_offset: tuple[float, float, float] = (0.2718, 0.3141, 0.1618)
+    # Section 1: preparation
+    size_range: tuple[PositiveFloat, PositiveFloat] = (0.05, 0.15)
+    mm_threshold: PositiveFloat = 10.0
+    rotations: int = Field(8, ge=1, le=360)
+    gt_density: PositiveFloat = 256.0
+    # Section 2: views and camera
+    view_space: ViewSpaceConfig = ViewSpaceConfig()
+    camera: CameraConfig = CameraConfig()
+    # Section 3: imaging
+    imaging: Literal["targets", "pixels"] = "targets"
+    # Section 4: refinement
+    refiner: Literal["none"] = "none"
+    band: PositiveFloat = 0.01
+    # Section 5: filter
+    alpha: int = Field(10, ge=1, le=MAX_VIEWS)
+    # Section 6: input cases
+    sampling: Literal["longtail"] = "longtail"
+    # Section 7: labels
+    empty_labels: Literal["keep", "drop"] = "keep"
+    solver_time_limit: PositiveFloat = 10.0
+
+    @field_validator("grid_offset")
+    @classmethod
+    def _offset_in_unit_cell(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
+        for component in value:
+            if not (0.0 <= component < 1.0) or not math.isfinite(component):
+                raise ValueError(f"each component must be in [0, 1) voxels, got {component}")
+        return value
+
+    @field_validator("size_range")
+    @classmethod
+    def _ordered_range(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if value[0] > value[1]:
+            raise ValueError(f"needs min <= max, got [{value[0]}, {value[1]}]")
+        return value
+
+    @model_validator(mode="after")
+    def _alpha_within_views(self) -> GenerationConfig:
+        n = self.view_space.count
+        if not (1 <= self.alpha <= n):
+            raise ValueError(f"alpha = {self.alpha} is outside the allowed range 1..{n} (view_space.count)")
+        return self
+
+    @property
+    def num_views(self) -> int:
+        return self.view_space.count
+
+    @property
+    def band_keys_sq(self) -> int:
+        """The band radius as a squared key distance: |dk|^2 <= this (25 for the defaults)."""
+        return int(math.floor((self.band / self.voxel_size) ** 2 + 1e-9))
+
+    def canonical_dict(self) -> dict[str, Any]:
+        """The config as plain data with files replaced by the sha256 of their content.
+
+        File paths are resolved when the config is loaded (relative to the config file), so the
+        path here is the one to read.
+        """
+        data = self.model_dump(mode="json")
+        if self.view_space.is_file:
+            data["view_space"]["source"] = "sha256:" + file_sha256(Path(self.view_space.source))
+        return data
+
+    def config_hash(self) -> str:
+        """sha256 of the canonical JSON (sorted keys, no spaces, floats by repr)."""
+        return hashlib.sha256(canonical_json(self.canonical_dict()).encode()).hexdigest()
+
+
+def canonical_json(data: Any) -> str:
+    """Sorted keys, no spaces; Python's json writes floats by repr, which round-trips exactly."""
+    return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
