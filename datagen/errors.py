@@ -24,3 +24,11 @@ class ObjectError(DatagenError):
 
 class ViewSpaceError(DatagenError):
     """A view-space file is missing or malformed."""
+
+
+class InvalidArgument(DatagenError, ValueError):
+    """A function argument a user chose is out of its allowed range."""
+
+
+class OutputError(DatagenError):
+    """An output location cannot be created or written."""

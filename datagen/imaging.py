@@ -64,19 +64,19 @@ class Observation:
 
     @staticmethod
     def combine(observations: Sequence[Observation]) -> Observation:
-        """O_S for a case S: the views' observations concatenated, keys united."""
-        ordered = sorted(observations, key=lambda o: o.views)
-        views = tuple(v for o in ordered for v in o.views)
-        if len(set(views)) != len(views):
+        """O_S for a case S: the views' observations concatenated (in view order), keys united."""
+        ordered = sorted(observations, key=lambda o: min(o.views))
+        origin_of = {v: o.origins[j] for o in ordered for j, v in enumerate(o.views)}
+        if sum(len(o.views) for o in ordered) != len(origin_of):
             raise ValueError("a view appears in more than one observation")
-        merged = np.concatenate([o.keys for o in ordered])
+        views = tuple(sorted(origin_of))
         return Observation(
             views=views,
-            origins=np.concatenate([o.origins for o in ordered]),
+            origins=np.stack([origin_of[v] for v in views]),
             points=np.concatenate([o.points for o in ordered]),
             point_views=np.concatenate([o.point_views for o in ordered]),
             pixels=np.concatenate([o.pixels for o in ordered]),
-            keys=np.unique(merged),
+            keys=np.unique(np.concatenate([o.keys for o in ordered])),
         )
 
 

@@ -37,8 +37,8 @@ class CameraConfig(_Frozen):
     coefficients and applies them twice (README, differences from the paper).
     """
 
-    width: int = Field(1280, ge=16, le=16384)
-    height: int = Field(720, ge=16, le=16384)
+    width: int = Field(1280, ge=16, le=16384, strict=True)
+    height: int = Field(720, ge=16, le=16384, strict=True)
     fx: PositiveFloat = 915.6066894531250
     fy: PositiveFloat = 913.3266601562500
     cx: float = 647.1453247070312
@@ -63,9 +63,9 @@ class ViewSpaceConfig(_Frozen):
     """
 
     source: str = BUILTIN_VIEW_SPACE
-    count: int = Field(32, ge=1, le=MAX_VIEWS)
+    count: int = Field(32, ge=1, le=MAX_VIEWS, strict=True)
     radius: PositiveFloat = 0.4
-    generator_seed: int = Field(0, ge=0)
+    generator_seed: int = Field(0, ge=0, strict=True)
 
     @model_validator(mode="after")
     def _builtin_has_32(self) -> ViewSpaceConfig:
@@ -84,14 +84,14 @@ class ViewSpaceConfig(_Frozen):
 class GenerationConfig(_Frozen):
     """Every setting that changes a sample (hashed into every sample and into ``dataset.json``)."""
 
-    seed: int = Field(0, ge=0, lt=2**63)
+    seed: int = Field(0, ge=0, lt=2**63, strict=True)
     # Section 0: keys
     voxel_size: PositiveFloat = 0.002
     grid_offset: tuple[float, float, float] = (0.2718, 0.3141, 0.1618)
     # Section 1: preparation
     size_range: tuple[PositiveFloat, PositiveFloat] = (0.05, 0.15)
     mm_threshold: PositiveFloat = 10.0
-    rotations: int = Field(8, ge=1, le=360)
+    rotations: int = Field(8, ge=1, le=360, strict=True)
     gt_density: PositiveFloat = 256.0
     # Section 2: views and camera
     view_space: ViewSpaceConfig = ViewSpaceConfig()
@@ -102,7 +102,7 @@ class GenerationConfig(_Frozen):
     refiner: Literal["none"] = "none"
     band: PositiveFloat = 0.01
     # Section 5: filter
-    alpha: int = Field(10, ge=1, le=MAX_VIEWS)
+    alpha: int = Field(10, ge=1, le=MAX_VIEWS, strict=True)
     # Section 6: input cases
     sampling: Literal["longtail"] = "longtail"
     # Section 7: labels

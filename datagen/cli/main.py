@@ -11,6 +11,7 @@ import numpy as np
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
+from rich.text import Text
 
 from datagen.cli.common import console, user_errors
 from datagen.config_io import config_to_toml, load_config
@@ -71,13 +72,13 @@ def objects_show(
         for entry in listing.entries:
             if isinstance(entry, ObjectLineError):
                 failures += 1
-                table.add_row(str(entry.line), "-", f"[red]{entry.message}[/red]", "", "", "", "", "")
+                table.add_row(str(entry.line), "-", Text(entry.message, style="red"), "", "", "", "", "")
                 continue
             try:
                 prepared = prepare_object(entry, resolved)
             except DatagenError as exc:
                 failures += 1
-                table.add_row(str(entry.line), entry.name, f"[red]{exc}[/red]", "", "", "", "", "")
+                table.add_row(str(entry.line), entry.name, Text(str(exc), style="red"), "", "", "", "", "")
                 continue
             table.add_row(
                 str(entry.line),
@@ -97,7 +98,7 @@ def objects_show(
 
 @objects_app.command("synth")
 def objects_synth(
-    count: Annotated[int, typer.Option("--count", "-n", min=1, help="How many meshes.")],
+    count: Annotated[int, typer.Option("--count", "-n", min=1, max=100_000, help="How many meshes.")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the meshes and objects.txt.")],
     seed: Annotated[int, typer.Option("--seed", "-s", min=0, help="Same seed, same bytes.")] = 0,
 ) -> None:
@@ -170,7 +171,7 @@ def scan(
         console.print(table)
         console.print(f"{table.row_count} tasks in {time.perf_counter() - started:.1f} s")
         for problem in problems:
-            console.print(f"[red]error:[/red] {problem}", highlight=False)
+            console.print(Text("error: ", style="red") + Text(problem), highlight=False)
         if problems:
             raise typer.Exit(1)
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import shlex
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from datagen.errors import ObjectsFileError
@@ -62,7 +62,7 @@ def read_objects_file(path: str | Path) -> ObjectsListing:
     """Resolve every line of an objects file; raise only when the file itself is unusable."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise ObjectsFileError(f"{path}: objects file not found; pass the path of an existing file") from None
     except UnicodeDecodeError:
@@ -73,10 +73,20 @@ def read_objects_file(path: str | Path) -> ObjectsListing:
         raise ObjectsFileError(f"{path}: cannot read objects file ({exc.strerror})") from None
     entries: list[ObjectEntry] = []
     for number, raw in enumerate(text.splitlines(), start=1):
-        content = _strip_comment(raw).strip()
-        if not content:
+        try:
+            tokens = shlex.split(raw, comments=True)
+        except ValueError as exc:
+            entries.append(
+                ObjectLineError(
+                    origin=str(path),
+                    line=number,
+                    text=raw.strip(),
+                    message=f"cannot split the line ({exc}); close the quotes around the path",
+                )
+            )
             continue
-        entries.append(_parse_line(path, number, raw.strip(), content))
+        if tokens:
+            entries.append(_parse_line(path, number, raw.strip(), tokens))
     if not entries:
         raise ObjectsFileError(
             f"{path}: lists no objects; add one line per mesh, 'PATH [name=..] [units=auto|m|mm] "
@@ -85,21 +95,12 @@ def read_objects_file(path: str | Path) -> ObjectsListing:
     return ObjectsListing(path=path, entries=tuple(_flag_duplicates(entries)))
 
 
-def _strip_comment(line: str) -> str:
-    index = line.find("#")
-    return line if index < 0 else line[:index]
-
-
-def _parse_line(path: Path, number: int, raw: str, content: str) -> ObjectEntry:
+def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectEntry:
     origin = str(path)
 
     def fail(message: str) -> ObjectLineError:
         return ObjectLineError(origin=origin, line=number, text=raw, message=message)
 
-    try:
-        tokens = shlex.split(content)
-    except ValueError as exc:
-        return fail(f"cannot split the line ({exc}); quote paths with spaces in matching quotes")
     target, pairs = tokens[0], tokens[1:]
     if "=" in target and target.partition("=")[0] in ALLOWED_KEYS:
         return fail("the line must start with a mesh path or builtin:NAME, then key=value options")
@@ -138,6 +139,7 @@ def _parse_line(path: Path, number: int, raw: str, content: str) -> ObjectEntry:
         object_id=file_object_id(data, object_options),
         origin=f"{origin}:{number}",
         line=number,
+        named="name" in options,
     )
 
 
@@ -181,11 +183,15 @@ def _builtin_spec(
         origin=f"{origin}:{number}",
         line=number,
         generator=identity,
+        named=name is not None,
     )
 
 
 def _flag_duplicates(entries: list[ObjectEntry]) -> list[ObjectEntry]:
-    """The same object twice (same id) or two objects under one name: later lines become errors."""
+    """The same object twice (same id) is an error naming both lines; so is a name given twice
+    with ``name=``. A default name (file stem) that collides gets the object id's first 8 hex
+    digits appended, since folders of meshes often share stems (ShapeNet's model_normalized)."""
+    explicit = {e.name for e in entries if isinstance(e, ObjectSpec) and e.named}
     first_by_id: dict[str, ObjectSpec] = {}
     first_by_name: dict[str, ObjectSpec] = {}
     result: list[ObjectEntry] = []
@@ -193,28 +199,31 @@ def _flag_duplicates(entries: list[ObjectEntry]) -> list[ObjectEntry]:
         if isinstance(entry, ObjectSpec):
             earlier = first_by_id.get(entry.object_id)
             if earlier is not None:
-                entry = ObjectLineError(
-                    origin=entry.origin.rsplit(":", 1)[0],
-                    line=entry.line,
-                    text=entry.source,
-                    message=(
+                result.append(
+                    _line_error(
+                        entry,
                         f"the same object as line {earlier.line} (same mesh and options); "
-                        f"delete one of lines {earlier.line} and {entry.line}"
-                    ),
+                        f"delete one of lines {earlier.line} and {entry.line}",
+                    )
                 )
-            elif entry.name in first_by_name:
+                continue
+            if entry.named and entry.name in first_by_name:
                 earlier = first_by_name[entry.name]
-                entry = ObjectLineError(
-                    origin=entry.origin.rsplit(":", 1)[0],
-                    line=entry.line,
-                    text=entry.source,
-                    message=(
-                        f"name {entry.name!r} is already used by line {earlier.line}; "
-                        "give one of them another name with name=..."
-                    ),
+                result.append(
+                    _line_error(
+                        entry,
+                        f"name {entry.name!r} is already used by line {earlier.line}; give one of them "
+                        "another name with name=...",
+                    )
                 )
-            else:
-                first_by_id[entry.object_id] = entry
-                first_by_name[entry.name] = entry
+                continue
+            if not entry.named and (entry.name in first_by_name or entry.name in explicit):
+                entry = replace(entry, name=f"{entry.name}-{entry.object_id[:8]}")
+            first_by_id[entry.object_id] = entry
+            first_by_name[entry.name] = entry
         result.append(entry)
     return result
+
+
+def _line_error(entry: ObjectSpec, message: str) -> ObjectLineError:
+    return ObjectLineError(origin=entry.origin.rsplit(":", 1)[0], line=entry.line, text=entry.source, message=message)

@@ -42,6 +42,8 @@ class ObjectSpec:
     line: int = 0
     generator: dict[str, Any] = field(default_factory=dict)
     """For built-ins: generator name, parameters and version (what the id is made of)."""
+    named: bool = False
+    """Whether the name was given with ``name=`` (else it is the file stem or built-in name)."""
 
     @property
     def is_builtin(self) -> bool:
