@@ -70,7 +70,9 @@ def sample_ground_truth(
     grid = KeyGrid.around(vertices, voxel_size, grid_offset)
     linear = np.zeros(count, dtype=np.int64)
     for axis in range(3):
-        coordinate = _sample_coordinate(triangles[:, 0, axis], edge_a[:, axis], edge_b[:, axis], per_face, r1, r2)
+        coordinate = _sample_coordinate(
+            triangles[:, 0, axis], edge_a[:, axis], edge_b[:, axis], per_face, r1, r2
+        )
         coordinate /= voxel_size
         coordinate += grid_offset[axis]
         linear *= grid.dims[axis]
@@ -83,7 +85,9 @@ def sample_ground_truth(
     face = np.searchsorted(np.cumsum(per_face), first, side="right")
     points = np.stack(
         [
-            _sample_coordinate(triangles[face, 0, axis], edge_a[face, axis], edge_b[face, axis], 1, r1[first], r2[first])
+            _sample_coordinate(
+                triangles[face, 0, axis], edge_a[face, axis], edge_b[face, axis], 1, r1[first], r2[first]
+            )
             for axis in range(3)
         ],
         axis=1,

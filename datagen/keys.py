@@ -104,7 +104,10 @@ class KeyGrid:
         return (shifted[:, 0] * self.dims[1] + shifted[:, 1]) * self.dims[2] + shifted[:, 2]
 
     def keys_of(self, linear: npt.ArrayLike) -> KeyArray:
-        return np.stack(np.unravel_index(np.asarray(linear, dtype=np.int64), tuple(self.dims)), axis=1) + self.low
+        return (
+            np.stack(np.unravel_index(np.asarray(linear, dtype=np.int64), tuple(self.dims)), axis=1)
+            + self.low
+        )
 
     def packed_of(self, linear: npt.ArrayLike) -> KeyArray:
         return pack_keys(self.keys_of(linear))

@@ -48,9 +48,13 @@ class CameraConfig(_Frozen):
     @model_validator(mode="after")
     def _principal_point_inside(self) -> CameraConfig:
         if not (0 < self.cx < self.width):
-            raise ValueError(f"camera.cx = {self.cx} must lie inside the image: 0 < cx < width ({self.width})")
+            raise ValueError(
+                f"camera.cx = {self.cx} must lie inside the image: 0 < cx < width ({self.width})"
+            )
         if not (0 < self.cy < self.height):
-            raise ValueError(f"camera.cy = {self.cy} must lie inside the image: 0 < cy < height ({self.height})")
+            raise ValueError(
+                f"camera.cy = {self.cy} must lie inside the image: 0 < cy < height ({self.height})"
+            )
         return self
 
 
@@ -138,7 +142,7 @@ class GenerationConfig(_Frozen):
     @property
     def band_keys_sq(self) -> int:
         """The band radius as a squared key distance: |dk|^2 <= this (25 for the defaults)."""
-        return int(math.floor((self.band / self.voxel_size) ** 2 + 1e-9))
+        return math.floor((self.band / self.voxel_size) ** 2 + 1e-9)
 
     def canonical_dict(self) -> dict[str, Any]:
         """The config as plain data with files replaced by the sha256 of their content.

@@ -188,8 +188,13 @@ def test_every_field_is_covered_by_the_change_list() -> None:
     top = {key for change in CHANGES for key in change}
     # refiner and sampling have one allowed value each so far: they cannot change yet
     assert top | {"refiner", "sampling"} == set(GenerationConfig.model_fields)
-    nested = {(key, sub) for change in CHANGES for key, value in change.items() if isinstance(value, dict)
-              for sub in value}
+    nested = {
+        (key, sub)
+        for change in CHANGES
+        for key, value in change.items()
+        if isinstance(value, dict)
+        for sub in value
+    }
     assert {sub for key, sub in nested if key == "camera"} == set(CameraConfig.model_fields)
     # count alone cannot change with the built-in source: it is tested below with a generated source
     view_space_keys = {sub for key, sub in nested if key == "view_space"}

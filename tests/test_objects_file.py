@@ -211,8 +211,9 @@ def test_bad_size(meshes: Path, value: str) -> None:
 
 def test_missing_mesh_file(meshes: Path) -> None:
     error = only_error(meshes, "sub/nope.obj")
-    assert_line_error(error, meshes, 3, "mesh file not found", str((meshes / "sub" / "nope.obj").resolve()),
-                      "fix the path")
+    assert_line_error(
+        error, meshes, 3, "mesh file not found", str((meshes / "sub" / "nope.obj").resolve()), "fix the path"
+    )
 
 
 def test_folder_instead_of_a_mesh(meshes: Path) -> None:

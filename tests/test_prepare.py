@@ -446,8 +446,11 @@ def test_builtin_prepares_watertight_in_range() -> None:
     name = "capsule"
     identity = builtins.builtin_generator_identity(name)
     spec = ObjectSpec(
-        source=f"builtin:{name}", name=name, options=ObjectOptions(),
-        object_id=builtin_object_id(identity, ObjectOptions()), generator=identity,
+        source=f"builtin:{name}",
+        name=name,
+        options=ObjectOptions(),
+        object_id=builtin_object_id(identity, ObjectOptions()),
+        generator=identity,
     )
     prepared = prepare_object(spec, CONFIG)
     assert prepared.watertight is True

@@ -134,14 +134,25 @@ def scan(
         listing = read_objects_file(objects)
         chosen = _rotations(rotations, resolved.rotations)
         table = Table(
-            "object", "rot", "P_gt", "union V", "keys/view", "only-1-view", "rays", "s",
+            "object",
+            "rot",
+            "P_gt",
+            "union V",
+            "keys/view",
+            "only-1-view",
+            "rays",
+            "s",
             title=f"{resolved.imaging} imaging, {view_space.count} views",
         )
         problems: list[str] = [str(error) for error in listing.errors]
         started = time.perf_counter()
         with Progress(
-            TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-            console=console, transient=True,
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+            console=console,
+            transient=True,
         ) as progress:
             bar = progress.add_task("scanning", total=len(listing.objects) * len(chosen))
             for spec in listing.objects:

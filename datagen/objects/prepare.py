@@ -84,21 +84,25 @@ def prepare_object(spec: ObjectSpec, config: GenerationConfig) -> PreparedObject
     mesh = load_mesh(spec)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
-    where = spec.source if not spec.is_builtin else spec.source
+    where = spec.source
     if faces.size == 0 or vertices.size == 0:
         raise ObjectError(f"{where}: the mesh has no faces; export the surface with its triangles")
     if not np.isfinite(vertices).all():
         raise ObjectError(f"{where}: the mesh has NaN or infinite vertex coordinates; repair or re-export it")
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
     mesh.merge_vertices()
-    mesh.update_faces(mesh.nondegenerate_faces(height=None))
+    mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
     if len(mesh.faces) == 0 or float(mesh.area) <= MIN_AREA_M2 * max(1.0, _extent(mesh.vertices)) ** 2:
-        raise ObjectError(f"{where}: the mesh has zero surface area (all faces degenerate); it cannot be imaged")
+        raise ObjectError(
+            f"{where}: the mesh has zero surface area (all faces degenerate); it cannot be imaged"
+        )
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
 
     units = spec.options.units
-    units_guessed = units if units != "auto" else ("mm" if np.abs(vertices).max() >= config.mm_threshold else "m")
+    units_guessed = (
+        units if units != "auto" else ("mm" if np.abs(vertices).max() >= config.mm_threshold else "m")
+    )
     unit_scale = 0.001 if units_guessed == "mm" else 1.0
     vertices = vertices * unit_scale
     if spec.options.up == "y":
