@@ -1,5 +1,29 @@
-"""The durable job queue (a SQLite ledger of jobs and tasks); no knowledge of meshes or Ray.
+"""The durable job queue: a SQLite ledger of jobs and tasks; no knowledge of meshes or Ray."""
 
-The ledger lands with the engine issue; the package exists now so that the distribution's layout
-(``schemas <- storage <- datagen -> jobs``) is fixed from the first commit.
-"""
+from jobs.ledger import (
+    CANCELLED,
+    DONE,
+    FAILED,
+    FINAL_STATES,
+    PENDING,
+    RUNNING,
+    Claim,
+    Job,
+    Ledger,
+    LedgerError,
+    Task,
+)
+
+__all__ = [
+    "CANCELLED",
+    "DONE",
+    "FAILED",
+    "FINAL_STATES",
+    "PENDING",
+    "RUNNING",
+    "Claim",
+    "Job",
+    "Ledger",
+    "LedgerError",
+    "Task",
+]

@@ -48,13 +48,9 @@ class CameraConfig(_Frozen):
     @model_validator(mode="after")
     def _principal_point_inside(self) -> CameraConfig:
         if not (0 < self.cx < self.width):
-            raise ValueError(
-                f"camera.cx = {self.cx} must lie inside the image: 0 < cx < width ({self.width})"
-            )
+            raise ValueError(f"camera.cx = {self.cx} must lie inside the image: 0 < cx < width ({self.width})")
         if not (0 < self.cy < self.height):
-            raise ValueError(
-                f"camera.cy = {self.cy} must lie inside the image: 0 < cy < height ({self.height})"
-            )
+            raise ValueError(f"camera.cy = {self.cy} must lie inside the image: 0 < cy < height ({self.height})")
         return self
 
 

@@ -13,6 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
+from datagen.cli import jobs_cmd
 from datagen.cli.common import console, user_errors
 from datagen.config_io import config_to_toml, load_config
 from datagen.errors import DatagenError
@@ -28,6 +29,7 @@ config_app = typer.Typer(help="Inspect generation configs.", no_args_is_help=Tru
 objects_app = typer.Typer(help="Built-in shapes, synthetic shapes and objects files.", no_args_is_help=True)
 app.add_typer(config_app, name="config")
 app.add_typer(objects_app, name="objects")
+jobs_cmd.register(app)
 
 ConfigOption = Annotated[
     Path | None, typer.Option("--config", "-c", help="Generation config (TOML); defaults otherwise.")

@@ -1,0 +1,367 @@
+"""Labels: minimum set covers solved exactly with HiGHS, lexicographic tie-break (PIPELINE.md 7).
+
+A universe element (a key of U) is represented by the bit mask of the views that cover it. Two
+facts make labels cheap:
+
+- Only the *minimal* masks matter: a row whose view set contains another row's set is implied by
+  it, and identical rows are one row. Keys with identical masks collapse too.
+- For a case S, U is the set of P_full keys whose mask misses S entirely, and the minimal masks of
+  U are exactly the task's minimal masks that miss S (a subset of a mask that misses S misses S
+  too). So a task reduces its masks once and every case only filters that short list.
+
+The label is found in two exact steps. First the minimum cardinality k*: a greedy cover whose
+size equals the ceiling of HiGHS's LP-relaxation bound is optimal by LP duality (HiGHS's own root
+node would stop there too); otherwise HiGHS solves the MIP with gaps 0. Then the tie-break: a
+depth-first search over sorted view tuples in lexicographic order returns the first cover of size
+k*, which is by construction the lexicographically smallest. Should that search exceed its node
+budget, a second MIP maximising sum(2^(m-1-rank(v))) over covers of size k* gives the same answer
+(a smaller first differing view outweighs every later one). Views forced by single-view rows are
+taken first; they belong to every cover.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import highspy
+import numpy as np
+import numpy.typing as npt
+
+from datagen.errors import DatagenError
+
+MaskArray = npt.NDArray[np.uint64]
+
+EXACT_WEIGHT_VIEWS = 40
+"""Above this many candidate views the weighted tie-break would exceed float64's exact integers;
+the tie-break then fixes views one at a time instead."""
+
+
+class LabelError(DatagenError):
+    """A label could not be proven optimal (time limit, solver failure): the sample is not written."""
+
+
+@dataclass(frozen=True)
+class CoverResult:
+    """The label of one case and how it was obtained."""
+
+    label: int
+    """Bit mask of the label views."""
+    status: str
+    """'optimal', or 'empty' when U is empty (nothing left to cover)."""
+    objective: int
+    """Minimum number of views (the label size)."""
+    rows_before: int
+    """Rows of the naive model: one per key of U."""
+    rows_after: int
+    """Rows after merging identical rows and dropping dominated ones."""
+    seconds: float
+    proof: str = "none"
+    """How optimality was proven: 'forced', 'lp-bound', 'mip' ('none' for an empty U)."""
+
+    @property
+    def views(self) -> tuple[int, ...]:
+        return mask_to_views(self.label)
+
+
+def mask_to_views(mask: int) -> tuple[int, ...]:
+    return tuple(i for i in range(mask.bit_length()) if mask >> i & 1)
+
+
+def views_to_mask(views: tuple[int, ...] | list[int]) -> int:
+    mask = 0
+    for view in views:
+        mask |= 1 << int(view)
+    return mask
+
+
+def popcount(masks: MaskArray) -> npt.NDArray[np.int64]:
+    return np.bitwise_count(masks).astype(np.int64)
+
+
+def minimal_masks(masks: npt.ArrayLike) -> MaskArray:
+    """The distinct masks that contain no other mask, sorted (dominated and duplicate rows removed).
+
+    Masks are taken in order of popcount; a mask is kept when no kept mask is a subset of it. Kept
+    masks are few (tens to hundreds), so each level is one vectorised test against them.
+    """
+    unique = np.unique(np.asarray(masks, dtype=np.uint64))
+    if unique.size == 0:
+        return unique
+    counts = popcount(unique)
+    kept = np.empty(0, dtype=np.uint64)
+    for level in np.unique(counts):
+        candidates = unique[counts == level]
+        if kept.size:
+            contains_kept = ((candidates[:, None] & kept[None, :]) == kept[None, :]).any(axis=1)
+            candidates = candidates[~contains_kept]
+        kept = np.concatenate([kept, candidates])
+    return np.sort(kept)
+
+
+class TaskCover:
+    """The reduced cover rows of one task (P_full's masks), ready to label any case."""
+
+    def __init__(self, full_masks: npt.ArrayLike, num_views: int, time_limit: float = 10.0) -> None:
+        self.full_masks = np.asarray(full_masks, dtype=np.uint64)
+        self.num_views = num_views
+        self.time_limit = time_limit
+        self.minimal = minimal_masks(self.full_masks)
+
+    def universe_size(self, case: int) -> int:
+        """|U| for case S: P_full keys covered by no view of S."""
+        return int(np.count_nonzero((self.full_masks & np.uint64(case)) == 0))
+
+    def label(self, case: int, threads: int = 1) -> CoverResult:
+        """The lexicographically smallest minimum cover of U(S), proven optimal."""
+        started = time.perf_counter()
+        rows_before = self.universe_size(case)
+        rows = self.minimal[(self.minimal & np.uint64(case)) == 0]
+        solution = solve_cover(rows, self.num_views, self.time_limit, threads) if rows.size else None
+        label = solution.label if solution else 0
+        return CoverResult(
+            label=label,
+            status="optimal" if rows.size else "empty",
+            objective=label.bit_count(),
+            rows_before=rows_before,
+            rows_after=int(rows.size),
+            seconds=time.perf_counter() - started,
+            proof=solution.proof if solution else "none",
+        )
+
+
+@dataclass(frozen=True)
+class CoverSolution:
+    label: int
+    proof: str
+    """How optimality was proven: 'forced', 'lp-bound' or 'mip'."""
+
+
+def solve_min_cover(rows: npt.ArrayLike, num_views: int, time_limit: float = 10.0, threads: int = 1) -> int:
+    """Mask of the lexicographically smallest minimum-cardinality cover of ``rows`` (non-empty
+    masks). Raises `LabelError` unless optimality is proven."""
+    return solve_cover(rows, num_views, time_limit, threads).label
+
+
+def solve_cover(rows: npt.ArrayLike, num_views: int, time_limit: float = 10.0, threads: int = 1) -> CoverSolution:
+    """`solve_min_cover` with the kind of optimality proof."""
+    remaining = minimal_masks(rows)
+    if (remaining == 0).any():
+        raise LabelError("a key is covered by no candidate view: no cover exists")
+    forced = 0
+    for single in remaining[popcount(remaining) == 1].tolist():
+        forced |= int(single)
+    if forced:
+        remaining = remaining[(remaining & np.uint64(forced)) == 0]
+    if remaining.size == 0:
+        return CoverSolution(forced, "forced")
+    union = int(np.bitwise_or.reduce(remaining))
+    candidates = [v for v in range(num_views) if union >> v & 1]
+    greedy = greedy_cover(remaining, candidates)
+    if greedy.bit_count() == _lp_bound(remaining, candidates, time_limit, threads):
+        size, proof = greedy.bit_count(), "lp-bound"
+    else:
+        solved = _solve(remaining, candidates, None, time_limit, threads)
+        if solved is None:
+            raise LabelError("HiGHS reports the cover problem infeasible")
+        size, proof = solved, "mip"
+    chosen = lexicographic_cover(remaining, candidates, size)
+    if chosen is None:
+        chosen = _solve_lexicographic(remaining, candidates, size, time_limit, threads)
+    return CoverSolution(forced | chosen, proof)
+
+
+def greedy_cover(rows: MaskArray, candidates: list[int]) -> int:
+    """The classic greedy cover (most rows first, ties to the lowest view): an upper bound."""
+    bits = ((rows[:, None] >> np.array(candidates, dtype=np.uint64)[None, :]) & np.uint64(1)).astype(bool)
+    open_rows = np.ones(rows.size, dtype=bool)
+    chosen = 0
+    while open_rows.any():
+        best = int(np.argmax(bits[open_rows].sum(axis=0)))
+        chosen |= 1 << candidates[best]
+        open_rows &= ~bits[:, best]
+    return chosen
+
+
+def lexicographic_cover(rows: MaskArray, candidates: list[int], size: int, node_budget: int = 50_000) -> int | None:
+    """The lexicographically smallest sorted tuple of ``size`` views covering every row, by a
+    depth-first search in lexicographic order (None if the budget runs out first).
+
+    Pruning: the next view of a sorted tuple must not exceed the highest view of the uncovered row
+    whose highest view is smallest, or that row could never be covered by the later, larger views.
+    """
+    budget = [node_budget]
+
+    def search(uncovered: list[int], start: int, need: int, chosen: int) -> int | None:
+        if not uncovered:
+            return chosen
+        if need == 0:
+            return None
+        budget[0] -= 1
+        if budget[0] < 0:
+            raise _BudgetExceeded
+        limit = min(row.bit_length() for row in uncovered) - 1
+        for index in range(start, len(candidates) - need + 1):
+            view = candidates[index]
+            if view > limit:
+                break
+            rest = [row for row in uncovered if not row >> view & 1]
+            found = search(rest, index + 1, need - 1, chosen | 1 << view)
+            if found is not None:
+                return found
+        return None
+
+    try:
+        return search([int(row) for row in rows], 0, size, 0)
+    except _BudgetExceeded:
+        return None
+
+
+class _BudgetExceeded(Exception):
+    pass
+
+
+def _lp_bound(rows: MaskArray, candidates: list[int], time_limit: float, threads: int) -> int:
+    """Ceiling of the LP relaxation's optimum: a lower bound on any cover's size."""
+    values = _run_model(
+        rows,
+        candidates,
+        [1.0] * len(candidates),
+        False,
+        None,
+        [1.0] * len(candidates),
+        [0.0] * len(candidates),
+        time_limit,
+        threads,
+        relax=True,
+    )
+    if values is None:
+        raise LabelError("HiGHS reports the cover relaxation infeasible")
+    return math.ceil(sum(values) - 1e-6)
+
+
+def _incidence(rows: MaskArray, candidates: list[int]) -> tuple[list[int], list[int]]:
+    """Row-wise CSR (starts, column indices) of which candidate views cover each row."""
+    bits = ((rows[:, None] >> np.array(candidates, dtype=np.uint64)[None, :]) & np.uint64(1)).astype(bool)
+    starts = np.concatenate([[0], np.cumsum(bits.sum(axis=1))]).tolist()
+    return starts, np.nonzero(bits)[1].tolist()
+
+
+def _highs(threads: int, time_limit: float) -> highspy.Highs:
+    solver = highspy.Highs()
+    solver.setOptionValue("output_flag", False)
+    solver.setOptionValue("threads", threads)
+    solver.setOptionValue("time_limit", float(time_limit))
+    solver.setOptionValue("mip_rel_gap", 0.0)
+    solver.setOptionValue("mip_abs_gap", 0.0)
+    solver.setOptionValue("random_seed", 0)
+    # Root-node heuristics cost more than they save on these small models (measured 1.8x).
+    solver.setOptionValue("mip_heuristic_effort", 0.0)
+    solver.setOptionValue("mip_heuristic_run_feasibility_jump", False)
+    solver.setOptionValue("mip_heuristic_run_rins", False)
+    solver.setOptionValue("mip_heuristic_run_rens", False)
+    solver.setOptionValue("mip_heuristic_run_root_reduced_cost", False)
+    return solver
+
+
+def _run_model(
+    rows: MaskArray,
+    candidates: list[int],
+    costs: list[float],
+    sense_maximise: bool,
+    cardinality: int | None,
+    upper: list[float],
+    lower: list[float],
+    time_limit: float,
+    threads: int,
+    relax: bool = False,
+) -> list[float] | None:
+    """Solve one binary model; None when proven infeasible, `LabelError` when not solved."""
+    starts, columns = _incidence(rows, candidates)
+    num_rows = len(rows)
+    lp = highspy.HighsLp()
+    lp.num_col_ = len(candidates)
+    lp.col_cost_ = costs
+    lp.col_lower_ = lower
+    lp.col_upper_ = upper
+    values = [1.0] * len(columns)
+    row_lower = [1.0] * num_rows
+    row_upper = [highspy.kHighsInf] * num_rows
+    if cardinality is not None:
+        starts = [*starts, starts[-1] + len(candidates)]
+        columns = columns + list(range(len(candidates)))
+        values = values + [1.0] * len(candidates)
+        row_lower.append(float(cardinality))
+        row_upper.append(float(cardinality))
+        num_rows += 1
+    lp.num_row_ = num_rows
+    lp.row_lower_ = row_lower
+    lp.row_upper_ = row_upper
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.start_ = starts
+    lp.a_matrix_.index_ = columns
+    lp.a_matrix_.value_ = values
+    lp.a_matrix_.num_col_ = len(candidates)
+    lp.a_matrix_.num_row_ = num_rows
+    if not relax:
+        lp.integrality_ = [highspy.HighsVarType.kInteger] * len(candidates)
+    lp.sense_ = highspy.ObjSense.kMaximize if sense_maximise else highspy.ObjSense.kMinimize
+    solver = _highs(threads, time_limit)
+    solver.passModel(lp)
+    solver.run()
+    status = solver.getModelStatus()
+    if status == highspy.HighsModelStatus.kInfeasible:
+        return None
+    if status != highspy.HighsModelStatus.kOptimal:
+        raise LabelError(f"HiGHS did not prove optimality ({solver.modelStatusToString(status)})")
+    return list(solver.getSolution().col_value)
+
+
+def _solve(
+    rows: MaskArray, candidates: list[int], fixed: dict[int, int] | None, time_limit: float, threads: int
+) -> int | None:
+    """Minimum number of candidate views covering every row, with optional views fixed to 0 or 1
+    (None when the fixing leaves no cover)."""
+    fixed = fixed or {}
+    lower = [1.0 if fixed.get(v) == 1 else 0.0 for v in candidates]
+    upper = [0.0 if fixed.get(v) == 0 else 1.0 for v in candidates]
+    values = _run_model(rows, candidates, [1.0] * len(candidates), False, None, upper, lower, time_limit, threads)
+    return None if values is None else round(sum(values))
+
+
+def _chosen(values: list[float], candidates: list[int]) -> int:
+    return views_to_mask([v for v, x in zip(candidates, values, strict=True) if x > 0.5])
+
+
+def _solve_lexicographic(rows: MaskArray, candidates: list[int], size: int, time_limit: float, threads: int) -> int:
+    """Among covers of exactly ``size`` views, the lexicographically smallest sorted tuple."""
+    m = len(candidates)
+    weights = [float(2 ** (m - 1 - rank)) for rank in range(m)]
+    values = _run_model(rows, candidates, weights, True, size, [1.0] * m, [0.0] * m, time_limit, threads)
+    if values is None:
+        raise LabelError("HiGHS finds no cover of the minimum size in the tie-break")
+    chosen = _chosen(values, candidates)
+    if chosen.bit_count() != size or not covers(chosen, rows):
+        raise LabelError("the tie-break solution is not a cover of the minimum size")
+    return chosen
+
+
+def _fix_lexicographic(rows: MaskArray, candidates: list[int], size: int, time_limit: float, threads: int) -> int:
+    """Tie-break for many views: include each view in turn whenever a minimum cover still exists."""
+    fixed: dict[int, int] = {}
+    taken = 0
+    for view in candidates:
+        if taken == size:
+            fixed[view] = 0
+            continue
+        feasible = _solve(rows, candidates, {**fixed, view: 1}, time_limit, threads) == size
+        fixed[view] = 1 if feasible else 0
+        taken += fixed[view]
+    return views_to_mask([v for v, x in fixed.items() if x == 1])
+
+
+def covers(label: int, rows: npt.ArrayLike) -> bool:
+    """Whether every row shares at least one view with the label."""
+    r = np.asarray(rows, dtype=np.uint64)
+    return bool(((r & np.uint64(label)) != 0).all())

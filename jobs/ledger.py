@@ -1,0 +1,327 @@
+"""The job ledger: a SQLite (WAL) file of jobs and tasks that survives crashes.
+
+States: ``pending -> running -> done | failed | cancelled`` for jobs and tasks alike. A running task
+holds a lease (owner, expiry); a task whose lease expired (its driver died) can be claimed again,
+with a new attempt id. Transitions are idempotent and conditional (a late report from an old
+attempt cannot overwrite a newer one), and every multi-row change runs in one ``BEGIN IMMEDIATE``
+transaction, so several processes can share one ledger file.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+import uuid
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+PENDING, RUNNING, DONE, FAILED, CANCELLED = "pending", "running", "done", "failed", "cancelled"
+FINAL_STATES = (DONE, FAILED, CANCELLED)
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS jobs (
+    job_id TEXT PRIMARY KEY,
+    state TEXT NOT NULL,
+    spec TEXT NOT NULL,
+    out TEXT NOT NULL,
+    created REAL NOT NULL,
+    updated REAL NOT NULL,
+    owner TEXT,
+    summary TEXT
+);
+CREATE TABLE IF NOT EXISTS tasks (
+    job_id TEXT NOT NULL,
+    task_id TEXT NOT NULL,
+    position INTEGER NOT NULL,
+    state TEXT NOT NULL,
+    spec TEXT NOT NULL,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    attempt_id TEXT,
+    lease_owner TEXT,
+    lease_expires REAL,
+    error TEXT,
+    placement TEXT,
+    samples INTEGER,
+    updated REAL NOT NULL,
+    PRIMARY KEY (job_id, task_id)
+);
+CREATE INDEX IF NOT EXISTS tasks_by_state ON tasks (job_id, state, position);
+"""
+
+
+class LedgerError(Exception):
+    """The ledger cannot be opened, or a job id is unknown; the message says what to do."""
+
+
+@dataclass(frozen=True)
+class Job:
+    job_id: str
+    state: str
+    spec: dict[str, Any]
+    out: str
+    created: float
+    updated: float
+    owner: str | None
+    summary: dict[str, Any] | None
+
+
+@dataclass(frozen=True)
+class Task:
+    job_id: str
+    task_id: str
+    position: int
+    state: str
+    spec: dict[str, Any]
+    attempts: int
+    attempt_id: str | None
+    lease_owner: str | None
+    lease_expires: float | None
+    error: str | None
+    placement: str | None
+    samples: int | None
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A task this owner may run now, under ``attempt_id``, until the lease expires."""
+
+    task: Task
+    attempt_id: str
+
+
+class Ledger:
+    """One ledger file; open one instance per process (connections are not shared)."""
+
+    def __init__(self, path: str | Path, timeout: float = 30.0) -> None:
+        self.path = Path(path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._db = sqlite3.connect(str(self.path), timeout=timeout, isolation_level=None)
+        except (OSError, sqlite3.Error) as exc:
+            raise LedgerError(f"{self.path}: cannot open the job ledger ({exc}); check --home / DATAGEN_HOME") from None
+        self._db.row_factory = sqlite3.Row
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        self._db.execute(f"PRAGMA busy_timeout={int(timeout * 1000)}")
+        with self._transaction() as db:
+            for statement in _SCHEMA.strip().split(";"):
+                if statement.strip():
+                    db.execute(statement)
+
+    def close(self) -> None:
+        self._db.close()
+
+    @contextmanager
+    def _transaction(self) -> Iterator[sqlite3.Connection]:
+        self._db.execute("BEGIN IMMEDIATE")
+        try:
+            yield self._db
+        except BaseException:
+            self._db.execute("ROLLBACK")
+            raise
+        self._db.execute("COMMIT")
+
+    # -- jobs ---------------------------------------------------------------------------------
+    def create_job(
+        self, job_id: str, spec: dict[str, Any], out: str, tasks: Sequence[tuple[str, dict[str, Any]]]
+    ) -> Job:
+        """Add a pending job with its tasks (in order); idempotent for an existing job id."""
+        now = time.time()
+        with self._transaction() as db:
+            exists = db.execute("SELECT 1 FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
+            if not exists:
+                db.execute(
+                    "INSERT INTO jobs (job_id, state, spec, out, created, updated) VALUES (?, ?, ?, ?, ?, ?)",
+                    (job_id, PENDING, json.dumps(spec, sort_keys=True), out, now, now),
+                )
+                db.executemany(
+                    "INSERT INTO tasks (job_id, task_id, position, state, spec, updated) VALUES (?, ?, ?, ?, ?, ?)",
+                    [
+                        (job_id, task_id, position, PENDING, json.dumps(task_spec, sort_keys=True), now)
+                        for position, (task_id, task_spec) in enumerate(tasks)
+                    ],
+                )
+        return self.job(job_id)
+
+    def job(self, job_id: str) -> Job:
+        row = self._db.execute("SELECT * FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
+        if row is None:
+            raise LedgerError(f"no job {job_id!r} in {self.path}; 'datagen status' lists the jobs")
+        return _job(row)
+
+    def jobs(self) -> list[Job]:
+        """Every job, oldest first."""
+        return [_job(r) for r in self._db.execute("SELECT * FROM jobs ORDER BY created, job_id")]
+
+    def runnable_jobs(self) -> list[Job]:
+        """Jobs that may have work left (pending or running), oldest first. Several drivers may
+        work on one job: task claims, not jobs, are exclusive."""
+        rows = self._db.execute("SELECT * FROM jobs WHERE state IN (?, ?) ORDER BY created, job_id", (PENDING, RUNNING))
+        return [_job(r) for r in rows]
+
+    def start_job(self, job_id: str, owner: str) -> Job:
+        with self._transaction() as db:
+            db.execute(
+                "UPDATE jobs SET state = ?, owner = ?, updated = ? WHERE job_id = ? AND state IN (?, ?)",
+                (RUNNING, owner, time.time(), job_id, PENDING, RUNNING),
+            )
+        return self.job(job_id)
+
+    def finish_job(self, job_id: str, summary: dict[str, Any], other_failures: int = 0) -> Job:
+        """done when every task is done, failed when any failed (or ``other_failures``, such as
+        objects-file lines that named no object); a cancelled job stays cancelled."""
+        counts = self.task_counts(job_id)
+        state = FAILED if counts.get(FAILED, 0) or other_failures else DONE
+        if counts.get(PENDING, 0) or counts.get(RUNNING, 0):
+            state = PENDING
+        with self._transaction() as db:
+            db.execute(
+                "UPDATE jobs SET state = ?, summary = ?, updated = ?, owner = NULL WHERE job_id = ? AND state != ?",
+                (state, json.dumps(summary, sort_keys=True), time.time(), job_id, CANCELLED),
+            )
+        return self.job(job_id)
+
+    def cancel_job(self, job_id: str) -> Job:
+        """Cancel a job and its unfinished tasks; finished tasks keep their state."""
+        self.job(job_id)
+        now = time.time()
+        with self._transaction() as db:
+            db.execute(
+                "UPDATE jobs SET state = ?, updated = ? WHERE job_id = ? AND state NOT IN (?, ?)",
+                (CANCELLED, now, job_id, DONE, FAILED),
+            )
+            db.execute(
+                "UPDATE tasks SET state = ?, lease_owner = NULL, updated = ? WHERE job_id = ? AND state IN (?, ?)",
+                (CANCELLED, now, job_id, PENDING, RUNNING),
+            )
+        return self.job(job_id)
+
+    def reopen_job(self, job_id: str) -> Job:
+        """For resume: tasks not done become pending again (attempt counts kept)."""
+        self.job(job_id)
+        now = time.time()
+        with self._transaction() as db:
+            db.execute(
+                "UPDATE tasks SET state = ?, lease_owner = NULL, lease_expires = NULL, updated = ? "
+                "WHERE job_id = ? AND state != ?",
+                (PENDING, now, job_id, DONE),
+            )
+            db.execute("UPDATE jobs SET state = ?, updated = ? WHERE job_id = ?", (PENDING, now, job_id))
+        return self.job(job_id)
+
+    # -- tasks --------------------------------------------------------------------------------
+    def tasks(self, job_id: str) -> list[Task]:
+        return [_task(r) for r in self._db.execute("SELECT * FROM tasks WHERE job_id = ? ORDER BY position", (job_id,))]
+
+    def task(self, job_id: str, task_id: str) -> Task:
+        row = self._db.execute("SELECT * FROM tasks WHERE job_id = ? AND task_id = ?", (job_id, task_id)).fetchone()
+        if row is None:
+            raise LedgerError(f"no task {task_id!r} in job {job_id!r}")
+        return _task(row)
+
+    def task_counts(self, job_id: str) -> dict[str, int]:
+        rows = self._db.execute("SELECT state, COUNT(*) AS n FROM tasks WHERE job_id = ? GROUP BY state", (job_id,))
+        return {r["state"]: int(r["n"]) for r in rows}
+
+    def claim(self, job_id: str, owner: str, lease: float, limit: int = 1) -> list[Claim]:
+        """Up to ``limit`` runnable tasks (pending, or running with an expired lease), in order,
+        each with a fresh attempt id and a lease for ``owner``."""
+        now = time.time()
+        claims: list[Claim] = []
+        with self._transaction() as db:
+            job = db.execute("SELECT state FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
+            if job is None or job["state"] in (CANCELLED, DONE, FAILED):
+                return []
+            rows = db.execute(
+                "SELECT * FROM tasks WHERE job_id = ? AND (state = ? OR (state = ? AND lease_expires < ?)) "
+                "ORDER BY position LIMIT ?",
+                (job_id, PENDING, RUNNING, now, limit),
+            ).fetchall()
+            for row in rows:
+                attempt_id = f"a{int(row['attempts']) + 1}-{uuid.uuid4().hex[:12]}"
+                db.execute(
+                    "UPDATE tasks SET state = ?, attempts = attempts + 1, attempt_id = ?, lease_owner = ?, "
+                    "lease_expires = ?, updated = ? WHERE job_id = ? AND task_id = ?",
+                    (RUNNING, attempt_id, owner, now + lease, now, job_id, row["task_id"]),
+                )
+                claims.append(Claim(task=_task(row), attempt_id=attempt_id))
+        return claims
+
+    def renew(self, job_id: str, owner: str, lease: float) -> None:
+        """Extend every lease this owner holds in a job (called periodically by a live driver)."""
+        self._db.execute(
+            "UPDATE tasks SET lease_expires = ? WHERE job_id = ? AND lease_owner = ? AND state = ?",
+            (time.time() + lease, job_id, owner, RUNNING),
+        )
+
+    def release(self, job_id: str, task_id: str, attempt_id: str) -> bool:
+        """Give a claimed task back (pending again), e.g. when its worker was lost."""
+        return self._transition(job_id, task_id, attempt_id, PENDING, {"lease_owner": None})
+
+    def complete(self, job_id: str, task_id: str, attempt_id: str, samples: int, placement: str | None) -> bool:
+        """Mark done. Accepted from the current attempt, or from any attempt once the task is
+        committed by another (the dataset's commit record decides which attempt readers follow)."""
+        return self._transition(
+            job_id,
+            task_id,
+            attempt_id,
+            DONE,
+            {"samples": samples, "placement": placement, "error": None},
+            any_attempt=True,
+        )
+
+    def fail(self, job_id: str, task_id: str, attempt_id: str, error: str) -> bool:
+        return self._transition(job_id, task_id, attempt_id, FAILED, {"error": error})
+
+    def _transition(
+        self,
+        job_id: str,
+        task_id: str,
+        attempt_id: str,
+        state: str,
+        fields: dict[str, Any],
+        any_attempt: bool = False,
+    ) -> bool:
+        assignments = ", ".join(f"{name} = ?" for name in ("state", "updated", *fields))
+        condition = "job_id = ? AND task_id = ? AND state NOT IN (?, ?)"
+        params: list[Any] = [state, time.time(), *fields.values(), job_id, task_id, DONE, CANCELLED]
+        if not any_attempt:
+            condition += " AND attempt_id = ?"
+            params.append(attempt_id)
+        with self._transaction() as db:
+            changed = db.execute(f"UPDATE tasks SET {assignments} WHERE {condition}", params).rowcount
+        return bool(changed)
+
+
+def _job(row: sqlite3.Row) -> Job:
+    return Job(
+        job_id=row["job_id"],
+        state=row["state"],
+        spec=json.loads(row["spec"]),
+        out=row["out"],
+        created=row["created"],
+        updated=row["updated"],
+        owner=row["owner"],
+        summary=json.loads(row["summary"]) if row["summary"] else None,
+    )
+
+
+def _task(row: sqlite3.Row) -> Task:
+    return Task(
+        job_id=row["job_id"],
+        task_id=row["task_id"],
+        position=row["position"],
+        state=row["state"],
+        spec=json.loads(row["spec"]),
+        attempts=row["attempts"],
+        attempt_id=row["attempt_id"],
+        lease_owner=row["lease_owner"],
+        lease_expires=row["lease_expires"],
+        error=row["error"],
+        placement=row["placement"],
+        samples=row["samples"],
+    )

@@ -1,0 +1,37 @@
+"""``dataset.json``: what a dataset is, readable without the pipeline."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict
+
+from schemas.config import GenerationConfig
+
+DATASET_FILE = "dataset.json"
+
+
+class DatasetInfo(BaseModel):
+    """The generation config and its hash, the view space, the camera and the software versions."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    schema_version: int
+    config: GenerationConfig
+    config_hash: str
+    view_positions: list[tuple[float, float, float]]
+    """The n candidate view positions (metres, task frame); bit i of a mask is view i."""
+    versions: dict[str, str]
+    created: str
+    """ISO 8601 time the dataset was first written."""
+
+    @property
+    def num_views(self) -> int:
+        return len(self.view_positions)
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "schema_version": self.schema_version,
+            "config_hash": self.config_hash,
+            "views": self.num_views,
+        }

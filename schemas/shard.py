@@ -1,0 +1,85 @@
+"""The shard layout: one Zarr v3 group per task attempt, holding every sample of the task.
+
+Every point is a voxel centre, so points are stored as their integer keys (int16 triples) and read
+back as float32 centres ``(key + 0.5 - grid_offset) * voxel_size``. Variable-length per-sample sets
+are flat key arrays plus offsets (sample i owns rows ``offsets[i]:offsets[i+1]``). Arrays are few
+and written once each, because zarr rewrites a whole shard on every partial write and costs about a
+millisecond per array access.
+
+Arrays of a shard group (N samples, n views):
+
+=====================  ============  ===========  ==============================================
+name                   dtype         shape        meaning
+=====================  ============  ===========  ==============================================
+``masks``              uint64        (N, 2)       column 0: view_state (case S), 1: label (L)
+``points_keys``        int16         (P, 3)       keys of P(O_S) of every sample, concatenated
+``points_offsets``     int64         (N + 1,)     sample i owns ``points_keys[o[i]:o[i+1]]``
+``observed_keys``      int16         (Q, 3)       keys of O_S (what the input views saw)
+``observed_offsets``   int64         (N + 1,)
+``visible_keys``       int16         (V, 3)       per-task V_i, views concatenated
+``visible_offsets``    int64         (n + 1,)
+``refined_keys``       int16         (R, 3)       per-task P_i = P(O_i) intersected with P_gt
+``refined_offsets``    int64         (n + 1,)
+``gt_keys``            int16         (G, 3)       per-task P_gt
+=====================  ============  ===========  ==============================================
+
+Every key set of a sample or view is sorted lexicographically (x, y, z) and unique. Rows are
+ordered by (case size, case mask). Group attributes (`ShardAttributes`) say what the task was.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+MASKS = "masks"
+VIEW_STATE_COLUMN = 0
+LABEL_COLUMN = 1
+
+KEY_SETS = ("points", "observed")
+"""Per-sample key sets: ``<name>_keys`` plus ``<name>_offsets`` with N + 1 entries."""
+TASK_SETS = ("visible", "refined")
+"""Per-view key sets of the task: ``<name>_keys`` plus ``<name>_offsets`` with n + 1 entries."""
+GT_KEYS = "gt_keys"
+
+KEY_DTYPE = np.dtype(np.int16)
+OFFSET_DTYPE = np.dtype(np.int64)
+MASK_DTYPE = np.dtype(np.uint64)
+
+
+def keys_array(name: str) -> str:
+    return f"{name}_keys"
+
+
+def offsets_array(name: str) -> str:
+    return f"{name}_offsets"
+
+
+def array_names() -> list[str]:
+    """Every array a shard group holds, sorted."""
+    names = [MASKS, GT_KEYS]
+    for name in (*KEY_SETS, *TASK_SETS):
+        names += [keys_array(name), offsets_array(name)]
+    return sorted(names)
+
+
+class ShardAttributes(BaseModel):
+    """Attributes of a shard group: the task, its attempt and how to turn keys into points."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    schema_version: int
+    task_id: str
+    object_id: str
+    object_name: str
+    rotation: int
+    attempt_id: str
+    num_views: int
+    num_samples: int
+    voxel_size: float
+    grid_offset: tuple[float, float, float]
+    config_hash: str
+    metadata: dict[str, Any]
+    """Per-task metadata shared by every sample (refiner, weights id, device, seed, timings...)."""

@@ -1,0 +1,26 @@
+"""Create and read ``dataset.json``; refuse to mix two configs in one dataset."""
+
+from __future__ import annotations
+
+from schemas.dataset import DATASET_FILE, DatasetInfo
+from storage.location import Location, StorageError
+
+
+def read_info(location: Location) -> DatasetInfo:
+    if not location.exists(DATASET_FILE):
+        raise StorageError(f"{location.url}: no {DATASET_FILE} here; this is not a datagen dataset (check the URL)")
+    return DatasetInfo.model_validate_json(location.read_bytes(DATASET_FILE))
+
+
+def init_dataset(location: Location, info: DatasetInfo) -> DatasetInfo:
+    """Write ``dataset.json`` for a new dataset, or check that an existing one has the same config."""
+    if location.exists(DATASET_FILE):
+        existing = read_info(location)
+        if existing.config_hash != info.config_hash:
+            raise StorageError(
+                f"{location.url}: holds a dataset of another config (hash {existing.config_hash[:12]}, "
+                f"this job {info.config_hash[:12]}); write to a new --out"
+            )
+        return existing
+    location.write_atomic(DATASET_FILE, info.model_dump_json(indent=1).encode())
+    return info

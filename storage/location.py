@@ -1,0 +1,116 @@
+"""Where a dataset lives: a local path or any fsspec URL, and the few file operations the commit
+protocol needs (atomic publish, first-writer-wins create)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import posixpath
+import uuid
+from dataclasses import dataclass, field
+from typing import Any
+
+import fsspec
+from fsspec.implementations.local import LocalFileSystem
+
+
+class StorageError(Exception):
+    """The dataset location cannot be reached, read or written; the message says what to do."""
+
+
+@dataclass(frozen=True)
+class Location:
+    """A dataset root on a filesystem; paths below it are POSIX-style and relative."""
+
+    fs: fsspec.AbstractFileSystem
+    root: str
+    url: str
+    storage_options: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def is_local(self) -> bool:
+        return isinstance(self.fs, LocalFileSystem)
+
+    def path(self, relative: str) -> str:
+        return posixpath.join(self.root, relative) if relative else self.root
+
+    def url_of(self, relative: str) -> str:
+        """A URL for a path below the root (for libraries that open URLs themselves, like zarr)."""
+        path = self.path(relative)
+        if self.is_local:
+            return path
+        protocol = self.fs.protocol if isinstance(self.fs.protocol, str) else self.fs.protocol[0]
+        return f"{protocol}://{path.lstrip('/')}" if protocol == "memory" else f"{protocol}://{path}"
+
+    def exists(self, relative: str) -> bool:
+        return bool(self.fs.exists(self.path(relative)))
+
+    def read_bytes(self, relative: str) -> bytes:
+        data = self.fs.cat_file(self.path(relative))
+        return bytes(data)
+
+    def write_atomic(self, relative: str, data: bytes) -> None:
+        """Publish a whole file: readers see the old content or the new one, never a prefix."""
+        target = self.path(relative)
+        self.fs.makedirs(posixpath.dirname(target), exist_ok=True)
+        if self.is_local:
+            temporary = f"{target}.tmp-{uuid.uuid4().hex}"
+            with open(temporary, "wb") as handle:
+                handle.write(data)
+                handle.flush()
+                os.fsync(handle.fileno())
+            os.replace(temporary, target)
+        else:
+            # Object stores and the memory filesystem publish a single put whole.
+            self.fs.pipe_file(target, data)
+
+    def create_exclusive(self, relative: str, data: bytes) -> bool:
+        """Publish a file only if none exists yet; True if this call created it.
+
+        Local: a fully written temporary file is hard-linked into place, which fails atomically if
+        the target exists. Elsewhere: check, then put (object stores give no portable
+        compare-and-swap; the ledger makes concurrent attempts of one task rare, and both write
+        identical content by determinism).
+        """
+        target = self.path(relative)
+        self.fs.makedirs(posixpath.dirname(target), exist_ok=True)
+        if self.is_local:
+            temporary = f"{target}.tmp-{uuid.uuid4().hex}"
+            with open(temporary, "wb") as handle:
+                handle.write(data)
+                handle.flush()
+                os.fsync(handle.fileno())
+            try:
+                os.link(temporary, target)
+                return True
+            except FileExistsError:
+                return False
+            finally:
+                os.unlink(temporary)
+        if self.fs.exists(target):
+            return False
+        self.fs.pipe_file(target, data)
+        return True
+
+    def listdir(self, relative: str) -> list[str]:
+        """Names directly under a folder, sorted; empty when it does not exist."""
+        try:
+            entries = self.fs.ls(self.path(relative), detail=False)
+        except FileNotFoundError:
+            return []
+        return sorted(posixpath.basename(str(e).rstrip("/")) for e in entries)
+
+    def remove(self, relative: str, recursive: bool = False) -> None:
+        with contextlib.suppress(FileNotFoundError):
+            self.fs.rm(self.path(relative), recursive=recursive)
+
+
+def open_location(url: str, storage_options: dict[str, Any] | None = None) -> Location:
+    """The filesystem and root path for a dataset URL (a plain path means the local disk)."""
+    try:
+        fs, root = fsspec.core.url_to_fs(url, **(storage_options or {}))
+    except (ImportError, ValueError) as exc:
+        raise StorageError(f"{url}: unsupported dataset URL ({exc}); use a local path or an fsspec URL") from None
+    if isinstance(fs, LocalFileSystem):
+        root = os.path.abspath(root)
+    return Location(fs=fs, root=str(root).rstrip("/") or "/", url=url, storage_options=dict(storage_options or {}))

@@ -1,0 +1,221 @@
+"""Read a dataset from its URL: the index as a pyarrow Table, samples as numpy arrays.
+
+Only committed tasks are visible. The merged ``index.parquet`` written by `finalise` is used when it
+covers exactly the current commit records; otherwise the per-shard fragments are merged on open.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from collections import OrderedDict
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from schemas.dataset import DatasetInfo
+from schemas.index import INDEX_SCHEMA, CommitRecord, FailureRecord
+from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
+from storage.dataset_info import read_info
+from storage.location import Location, StorageError, open_location
+from storage.shards import ShardReader
+from storage.writer import committed_tasks, read_failures
+
+INDEX_FILE = "index.parquet"
+INDEX_COVERAGE_FILE = "index.json"
+SHARD_CACHE = 16
+
+Sample = dict[str, Any]
+
+
+def finalise(location: Location) -> pa.Table:
+    """Merge the committed fragments into ``index.parquet`` (with the commits it covers)."""
+    commits = committed_tasks(location)
+    table = _merge_fragments(location, commits)
+    sink = pa.BufferOutputStream()
+    pq.write_table(table, sink, compression="zstd")
+    location.write_atomic(INDEX_FILE, bytes(sink.getvalue().to_pybytes()))
+    coverage = {r.task_id: r.attempt_id for r in commits}
+    location.write_atomic(INDEX_COVERAGE_FILE, json.dumps(coverage, sort_keys=True).encode())
+    return table
+
+
+def load_index(location: Location, commits: Sequence[CommitRecord] | None = None) -> pa.Table:
+    commits = committed_tasks(location) if commits is None else commits
+    if location.exists(INDEX_FILE) and location.exists(INDEX_COVERAGE_FILE):
+        coverage = json.loads(location.read_bytes(INDEX_COVERAGE_FILE))
+        if coverage == {r.task_id: r.attempt_id for r in commits}:
+            return pq.read_table(io.BytesIO(location.read_bytes(INDEX_FILE)), schema=INDEX_SCHEMA)
+    return _merge_fragments(location, commits)
+
+
+def _merge_fragments(location: Location, commits: Sequence[CommitRecord]) -> pa.Table:
+    tables = [
+        pq.read_table(io.BytesIO(location.read_bytes(record.index_fragment)), schema=INDEX_SCHEMA) for record in commits
+    ]
+    if not tables:
+        return INDEX_SCHEMA.empty_table()
+    return pa.concat_tables(tables).combine_chunks()
+
+
+def open_dataset(url: str, storage_options: dict[str, Any] | None = None) -> Dataset:
+    """Open the dataset at a local path or fsspec URL for reading."""
+    location = open_location(url, storage_options)
+    try:
+        info = read_info(location)
+        index = load_index(location)
+    except FileNotFoundError as exc:
+        raise StorageError(f"{url}: incomplete dataset ({exc}); run 'datagen shards validate {url}'") from None
+    return Dataset(location, info, index)
+
+
+class Dataset:
+    """Random access to samples (``ds[i]``), filters, object-level splits, shuffled iteration."""
+
+    def __init__(self, location: Location, info: DatasetInfo, index: pa.Table) -> None:
+        self.location = location
+        self.info = info
+        self.index = index
+        self._shards: OrderedDict[str, ShardReader] = OrderedDict()
+        self._shard_col = index.column("shard").to_pylist()
+        self._row_col = index.column("row").to_numpy()
+        self._voxel = info.config.voxel_size
+        self._offset = np.asarray(info.config.grid_offset, dtype=np.float64)
+
+    # -- basics -------------------------------------------------------------------------------
+    @property
+    def url(self) -> str:
+        return self.location.url
+
+    @property
+    def num_views(self) -> int:
+        return self.info.num_views
+
+    def __len__(self) -> int:
+        return int(self.index.num_rows)
+
+    def failures(self) -> list[FailureRecord]:
+        return read_failures(self.location)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_shards"] = OrderedDict()  # shard handles are reopened lazily in each process
+        return state
+
+    # -- samples ------------------------------------------------------------------------------
+    def shard(self, relative: str) -> ShardReader:
+        reader = self._shards.get(relative)
+        if reader is None:
+            reader = ShardReader(self.location, relative)
+            self._shards[relative] = reader
+            if len(self._shards) > SHARD_CACHE:
+                self._shards.popitem(last=False)
+        else:
+            self._shards.move_to_end(relative)
+        return reader
+
+    def keys(self, i: int, source: str = "points") -> npt.NDArray[np.int16]:
+        """Integer keys (K, 3) of sample i's ``points`` or ``observed`` set."""
+        shard = self.shard(self._shard_col[i])
+        return shard.key_set(source, int(self._row_col[i]))
+
+    def centres(self, keys: npt.NDArray[np.integer]) -> npt.NDArray[np.float32]:
+        """Voxel centres (float32) of integer keys."""
+        return ((keys.astype(np.float64) + 0.5 - self._offset) * self._voxel).astype(np.float32)
+
+    def masks(self, i: int) -> tuple[int, int]:
+        """(view_state, label) of sample i as integer bit masks."""
+        shard = self.shard(self._shard_col[i])
+        row = shard.array(MASKS)[int(self._row_col[i])]
+        return int(row[VIEW_STATE_COLUMN]), int(row[LABEL_COLUMN])
+
+    def __getitem__(self, i: int) -> Sample:
+        if not -len(self) <= i < len(self):
+            raise IndexError(f"sample {i} out of range for {len(self)} samples")
+        i = i % len(self)
+        view_state, label = self.masks(i)
+        return {
+            "sample_id": self.index.column("sample_id")[i].as_py(),
+            "points": self.centres(self.keys(i, "points")),
+            "observed": self.centres(self.keys(i, "observed")),
+            "view_state": mask_to_bools(view_state, self.num_views),
+            "label": mask_to_bools(label, self.num_views),
+        }
+
+    # -- selections ---------------------------------------------------------------------------
+    def select(self, rows: npt.ArrayLike) -> Dataset:
+        """A dataset over a subset of index rows (in the given order)."""
+        return Dataset(self.location, self.info, self.index.take(pa.array(np.asarray(rows, dtype=np.int64))))
+
+    def filter(
+        self,
+        objects: Sequence[str] | str | None = None,
+        rotations: Sequence[int] | int | None = None,
+        case_sizes: Sequence[int] | int | None = None,
+    ) -> Dataset:
+        """Samples whose object (name or id), rotation and case size are among those given."""
+        keep = pa.array(np.ones(len(self), dtype=bool))
+        if objects is not None:
+            wanted = [objects] if isinstance(objects, str) else list(objects)
+            keep = pc.and_(
+                keep,
+                pc.or_(
+                    pc.is_in(self.index["object_name"], pa.array(wanted)),
+                    pc.is_in(self.index["object_id"], pa.array(wanted)),
+                ),
+            )
+        if rotations is not None:
+            wanted_r = [rotations] if isinstance(rotations, int) else list(rotations)
+            keep = pc.and_(keep, pc.is_in(self.index["rotation"], pa.array(wanted_r, pa.int16())))
+        if case_sizes is not None:
+            wanted_c = [case_sizes] if isinstance(case_sizes, int) else list(case_sizes)
+            keep = pc.and_(keep, pc.is_in(self.index["case_size"], pa.array(wanted_c, pa.int16())))
+        return self.select(np.flatnonzero(keep.to_numpy(zero_copy_only=False)))
+
+    def object_ids(self) -> list[str]:
+        return sorted(set(self.index.column("object_id").to_pylist()))
+
+    def split(self, val: float = 0.2, seed: int = 0) -> tuple[Dataset, Dataset]:
+        """(train, val) by object, never by sample: every sample of an object lands on one side."""
+        if not 0.0 <= val <= 1.0:
+            raise ValueError(f"val = {val} must be in [0, 1]")
+        objects = self.object_ids()
+        order = np.random.default_rng(np.random.SeedSequence([seed, len(objects)])).permutation(len(objects))
+        val_objects = {objects[i] for i in order[: round(val * len(objects))]}
+        in_val = np.array([o in val_objects for o in self.index.column("object_id").to_pylist()], dtype=bool)
+        return self.select(np.flatnonzero(~in_val)), self.select(np.flatnonzero(in_val))
+
+    # -- iteration ----------------------------------------------------------------------------
+    def shard_blocks(self) -> list[npt.NDArray[np.int64]]:
+        """Sample indices grouped by shard (shards sorted by path, rows in index order)."""
+        groups: dict[str, list[int]] = {}
+        for i, shard in enumerate(self._shard_col):
+            groups.setdefault(shard, []).append(i)
+        return [np.asarray(groups[s], dtype=np.int64) for s in sorted(groups)]
+
+    def shuffled_order(self, seed: int, epoch: int = 0, buffer: int = 1024) -> npt.NDArray[np.int64]:
+        """A shard-aware shuffle: shards in random order, samples mixed through a buffer of
+        ``buffer`` samples, so only a few shards need to be open at a time."""
+        rng = np.random.default_rng(np.random.SeedSequence([seed, epoch]))
+        blocks = self.shard_blocks()
+        order: list[int] = []
+        pool: list[int] = []
+        for b in rng.permutation(len(blocks)):
+            pool.extend(rng.permutation(blocks[b]).tolist())
+            while len(pool) > buffer:
+                order.append(pool.pop(int(rng.integers(len(pool)))))
+        order.extend(rng.permutation(np.asarray(pool, dtype=np.int64)).tolist())
+        return np.asarray(order, dtype=np.int64)
+
+    def iter_shuffled(self, seed: int = 0, epoch: int = 0, buffer: int = 1024) -> Iterator[Sample]:
+        for i in self.shuffled_order(seed, epoch, buffer):
+            yield self[int(i)]
+
+
+def mask_to_bools(mask: int, width: int) -> npt.NDArray[np.bool_]:
+    return np.array([(mask >> v) & 1 for v in range(width)], dtype=bool)

@@ -1,0 +1,96 @@
+"""PyTorch access: `OSVPDataset` (fixed-size point clouds, view state, label) and a shard-aware
+sampler. Importing `storage` never imports torch; importing this module does.
+
+Resampling to ``num_points`` depends only on (seed, epoch, index), never on worker count or order,
+so two runs with the same seeds see identical tensors. Shard handles are opened lazily in each
+worker process (fork and spawn both work: the dataset pickles without them).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset as TorchDataset
+from torch.utils.data import Sampler
+
+from storage.reader import Dataset, open_dataset
+
+
+class OSVPDataset(TorchDataset[dict[str, torch.Tensor]]):
+    """Samples as tensors: ``points`` (num_points, 3) float32, ``view_state`` and ``label`` (n,)
+    float32 (0/1), plus ``index``."""
+
+    def __init__(
+        self,
+        url: str,
+        num_points: int = 2048,
+        source: Literal["points", "observed"] = "points",
+        split: Literal["train", "val"] | None = None,
+        val_fraction: float = 0.2,
+        seed: int = 0,
+        split_seed: int = 0,
+        storage_options: dict[str, Any] | None = None,
+    ) -> None:
+        if source not in ("points", "observed"):
+            raise ValueError(f"source = {source!r}: use 'points' (refined) or 'observed'")
+        if num_points < 1:
+            raise ValueError(f"num_points = {num_points} must be >= 1")
+        dataset = open_dataset(url, storage_options)
+        if split is not None:
+            train, val = dataset.split(val_fraction, split_seed)
+            dataset = train if split == "train" else val
+        self.dataset: Dataset = dataset
+        self.num_points = num_points
+        self.source = source
+        self.seed = seed
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        """Choose the resampling of this epoch (call before creating the DataLoader iterator)."""
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        keys = self.dataset.keys(index, self.source)
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, index]))
+        if keys.shape[0] == 0:
+            chosen = np.zeros((self.num_points, 3), dtype=np.int16)
+        else:
+            replace = keys.shape[0] < self.num_points
+            chosen = keys[rng.choice(keys.shape[0], size=self.num_points, replace=replace)]
+        view_state, label = self.dataset.masks(index)
+        width = self.dataset.num_views
+        bits = np.arange(width, dtype=np.uint64)
+        return {
+            "points": torch.from_numpy(self.dataset.centres(chosen)),
+            "view_state": torch.from_numpy(((np.uint64(view_state) >> bits) & np.uint64(1)).astype(np.float32)),
+            "label": torch.from_numpy(((np.uint64(label) >> bits) & np.uint64(1)).astype(np.float32)),
+            "index": torch.tensor(index),
+        }
+
+
+class ShardShuffleSampler(Sampler[int]):
+    """Shuffled order that visits shards one at a time through a mixing buffer (see
+    `Dataset.shuffled_order`): random enough for training, and each worker keeps hitting the few
+    shards it has cached, which is what makes the DataLoader fast."""
+
+    def __init__(self, dataset: OSVPDataset, seed: int = 0, buffer: int = 1024) -> None:
+        self.dataset = dataset
+        self.seed = seed
+        self.buffer = buffer
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def __iter__(self) -> Iterator[int]:
+        order = self.dataset.dataset.shuffled_order(self.seed, self.epoch, self.buffer)
+        return iter(order.tolist())

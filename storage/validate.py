@@ -1,0 +1,194 @@
+"""`validate`: check a dataset's structure and that every checked label covers its U (numpy only).
+
+Minimality and the lexicographic tie-break need a solver; ``datagen shards validate --all`` adds
+them on top of this. Each problem is one line naming the shard (or file) and, where it applies,
+the row.
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import pyarrow.parquet as pq
+
+from schemas.index import INDEX_SCHEMA, CommitRecord
+from schemas.shard import (
+    GT_KEYS,
+    KEY_DTYPE,
+    KEY_SETS,
+    LABEL_COLUMN,
+    MASK_DTYPE,
+    MASKS,
+    OFFSET_DTYPE,
+    TASK_SETS,
+    VIEW_STATE_COLUMN,
+    array_names,
+    keys_array,
+    offsets_array,
+)
+from schemas.version import SCHEMA_VERSION
+from storage.dataset_info import read_info
+from storage.location import Location, StorageError, open_location
+from storage.reader import load_index
+from storage.shards import ShardReader
+from storage.writer import committed_tasks
+
+SAMPLED_ROWS_PER_SHARD = 8
+
+
+def validate(url: str, full: bool = False, seed: int = 0, storage_options: dict[str, Any] | None = None) -> list[str]:
+    """Every problem found, one line each (empty when the dataset is sound).
+
+    ``full=False`` checks coverage on a seeded sample of rows per shard; ``full=True`` on every row.
+    """
+    location = open_location(url, storage_options)
+    try:
+        info = read_info(location)
+    except StorageError as exc:
+        return [str(exc)]
+    problems: list[str] = []
+    if info.schema_version != SCHEMA_VERSION:
+        problems.append(f"dataset.json: schema version {info.schema_version}, this reader knows {SCHEMA_VERSION}")
+    num_views, alpha = info.num_views, info.config.alpha
+    commits = committed_tasks(location)
+    rng = np.random.default_rng(seed)
+    for record in commits:
+        problems.extend(_check_shard(location, record, num_views, alpha, full, rng))
+    problems.extend(_check_index(location, commits))
+    return problems
+
+
+def _check_shard(
+    location: Location, record: CommitRecord, num_views: int, alpha: int, full: bool, rng: np.random.Generator
+) -> Iterator[str]:
+    where = record.shard
+    try:
+        shard = ShardReader(location, record.shard)
+    except Exception as exc:  # a missing or unreadable group: report, keep checking others
+        yield f"{where}: cannot open shard ({type(exc).__name__}: {exc})"
+        return
+    count = record.num_samples
+    if shard.attributes.num_samples != count or shard.attributes.attempt_id != record.attempt_id:
+        yield f"{where}: attributes disagree with the commit record (samples or attempt id)"
+    names = shard.array_names()
+    missing = sorted(set(array_names()) - set(names))
+    if missing:
+        yield f"{where}: missing arrays {missing}"
+        return
+    try:
+        arrays = {name: shard.array(name) for name in array_names()}
+    except Exception as exc:
+        yield f"{where}: cannot read arrays ({type(exc).__name__}: {exc}); the shard is truncated or corrupt"
+        return
+    masks = arrays[MASKS]
+    if masks.dtype != MASK_DTYPE or masks.shape != (count, 2):
+        yield f"{where}: masks has shape {masks.shape} {masks.dtype}, expected ({count}, 2) uint64"
+        return
+    shape_problems = list(_check_key_sets(where, arrays, count, num_views))
+    yield from shape_problems
+    if shape_problems:
+        return
+    too_wide = (masks >> np.uint64(num_views)) != 0 if num_views < 64 else np.zeros_like(masks, dtype=bool)
+    for row in np.flatnonzero(too_wide.any(axis=1)):
+        yield f"{where} row {row}: mask has bits beyond the {num_views} views"
+    overlap = (masks[:, VIEW_STATE_COLUMN] & masks[:, LABEL_COLUMN]) != 0
+    for row in np.flatnonzero(overlap):
+        yield f"{where} row {row}: label shares views with the input case"
+    yield from _check_coverage(where, arrays, count, num_views, alpha, full, rng)
+
+
+def _check_key_sets(where: str, arrays: dict[str, npt.NDArray[Any]], count: int, num_views: int) -> Iterator[str]:
+    expected = {name: count + 1 for name in KEY_SETS} | {name: num_views + 1 for name in TASK_SETS}
+    for name, length in expected.items():
+        keys, offsets = arrays[keys_array(name)], arrays[offsets_array(name)]
+        if keys.dtype != KEY_DTYPE or keys.ndim != 2 or keys.shape[1] != 3:
+            yield f"{where}: {keys_array(name)} has shape {keys.shape} {keys.dtype}, expected (K, 3) int16"
+            continue
+        if offsets.dtype != OFFSET_DTYPE or offsets.shape != (length,):
+            shape = f"{offsets.shape} {offsets.dtype}"
+            yield f"{where}: {offsets_array(name)} has shape {shape}, expected ({length},) int64"
+            continue
+        if offsets[0] != 0 or (np.diff(offsets) < 0).any() or offsets[-1] != keys.shape[0]:
+            bad = np.flatnonzero(np.diff(offsets) < 0)
+            row = f" row {int(bad[0])}" if bad.size else ""
+            yield (
+                f"{where}{row}: {offsets_array(name)} not monotone from 0 to {keys.shape[0]} "
+                f"(first {int(offsets[0])}, last {int(offsets[-1])}); the array is truncated or the offsets are bad"
+            )
+    gt = arrays[GT_KEYS]
+    if gt.dtype != KEY_DTYPE or gt.ndim != 2 or gt.shape[1] != 3:
+        yield f"{where}: {GT_KEYS} has shape {gt.shape} {gt.dtype}, expected (G, 3) int16"
+
+
+def _packed(keys: npt.NDArray[np.int16]) -> npt.NDArray[np.int64]:
+    k = keys.astype(np.int64) + (1 << 15)
+    return (k[:, 0] << 32) | (k[:, 1] << 16) | k[:, 2]
+
+
+def _check_coverage(
+    where: str,
+    arrays: dict[str, npt.NDArray[Any]],
+    count: int,
+    num_views: int,
+    alpha: int,
+    full: bool,
+    rng: np.random.Generator,
+) -> Iterator[str]:
+    """Recompute P_full and each checked row's U from the stored P_i; the label must cover U."""
+    keys, offsets = arrays[keys_array("refined")], arrays[offsets_array("refined")]
+    per_view = [_packed(keys[offsets[v] : offsets[v + 1]]) for v in range(num_views)]
+    if not per_view or sum(len(p) for p in per_view) == 0:
+        universe_keys, key_masks = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.uint64)
+    else:
+        everything = np.concatenate(per_view)
+        views = np.repeat(np.arange(num_views, dtype=np.uint64), [len(p) for p in per_view])
+        universe_keys, inverse = np.unique(everything, return_inverse=True)
+        key_masks = np.zeros(universe_keys.size, dtype=np.uint64)
+        np.bitwise_or.at(key_masks, inverse, np.uint64(1) << views)
+    full_masks = key_masks[np.bitwise_count(key_masks) >= alpha]
+    rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
+    masks = arrays[MASKS]
+    for row in rows:
+        case, label = np.uint64(masks[row, VIEW_STATE_COLUMN]), np.uint64(masks[row, LABEL_COLUMN])
+        universe = full_masks[(full_masks & case) == 0]
+        uncovered = int(np.count_nonzero((universe & label) == 0))
+        if uncovered:
+            yield f"{where} row {row}: label leaves {uncovered} keys of U uncovered"
+
+
+def _check_index(location: Location, commits: list[CommitRecord]) -> Iterator[str]:
+    committed = {r.shard: r for r in commits}
+    for record in commits:
+        try:
+            fragment = pq.read_table(io.BytesIO(location.read_bytes(record.index_fragment)))
+        except Exception as exc:
+            yield f"{record.index_fragment}: cannot read index fragment ({type(exc).__name__})"
+            continue
+        if fragment.schema.remove_metadata() != INDEX_SCHEMA:
+            yield f"{record.index_fragment}: index columns differ from the schema"
+        if fragment.num_rows != record.num_samples:
+            yield f"{record.index_fragment}: {fragment.num_rows} rows for {record.num_samples} samples"
+    try:
+        index = load_index(location, commits)
+    except Exception as exc:
+        yield f"index: cannot be read ({type(exc).__name__}: {exc})"
+        return
+    sample_ids = index.column("sample_id").to_pylist()
+    seen: dict[str, int] = {}
+    for position, sample in enumerate(sample_ids):
+        if sample in seen:
+            yield f"index row {position}: duplicate sample id {sample} (first at row {seen[sample]})"
+        else:
+            seen[sample] = position
+    shards = index.column("shard").to_pylist()
+    rows = index.column("row").to_pylist()
+    for position, (shard, row) in enumerate(zip(shards, rows, strict=True)):
+        owner = committed.get(shard)
+        if owner is None:
+            yield f"index row {position}: points to {shard}, which no commit record names"
+        elif not 0 <= row < owner.num_samples:
+            yield f"index row {position}: row {row} is outside {shard} ({owner.num_samples} samples)"
