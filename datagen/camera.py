@@ -59,9 +59,7 @@ def project(camera: CameraConfig, points_camera: npt.ArrayLike) -> npt.NDArray[n
     return np.stack([camera.fx * p[:, 0] / z + camera.cx, camera.fy * p[:, 1] / z + camera.cy], axis=1)
 
 
-def inside_image(
-    camera: CameraConfig, uv: npt.NDArray[np.float64], depth: npt.ArrayLike
-) -> npt.NDArray[np.bool_]:
+def inside_image(camera: CameraConfig, uv: npt.NDArray[np.float64], depth: npt.ArrayLike) -> npt.NDArray[np.bool_]:
     """Points in front of the camera that project inside the image rectangle."""
     return (
         (np.asarray(depth) > 0)
@@ -126,9 +124,7 @@ def cone_pixel_rays(
     return directions, pixels
 
 
-def full_frame_rays(
-    camera: CameraConfig, pose: Pose
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]]:
+def full_frame_rays(camera: CameraConfig, pose: Pose) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]]:
     """Every pixel's unit world direction (for tests that check the crop against the full frame)."""
     uu, vv = np.meshgrid(np.arange(camera.width) + 0.5, np.arange(camera.height) + 0.5)
     x = (uu.ravel() - camera.cx) / camera.fx

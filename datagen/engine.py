@@ -62,11 +62,16 @@ def ensure_ray(address: str | None, num_cpus: int | None) -> None:
     if ray.is_initialized():
         return
     env = {"env_vars": {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}}
-    quiet = {"log_to_driver": False, "logging_level": logging.ERROR, "configure_logging": True}
     if address:
-        ray.init(address=address, runtime_env=env, **quiet)
+        ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.ERROR)
     else:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, runtime_env=env, **quiet)
+        ray.init(
+            num_cpus=num_cpus,
+            include_dashboard=False,
+            runtime_env=env,
+            log_to_driver=False,
+            logging_level=logging.ERROR,
+        )
 
 
 def _remote_execute(

@@ -70,9 +70,7 @@ def sample_ground_truth(
     grid = KeyGrid.around(vertices, voxel_size, grid_offset)
     linear = np.zeros(count, dtype=np.int64)
     for axis in range(3):
-        coordinate = _sample_coordinate(
-            triangles[:, 0, axis], edge_a[:, axis], edge_b[:, axis], per_face, r1, r2
-        )
+        coordinate = _sample_coordinate(triangles[:, 0, axis], edge_a[:, axis], edge_b[:, axis], per_face, r1, r2)
         coordinate /= voxel_size
         coordinate += grid_offset[axis]
         linear *= grid.dims[axis]

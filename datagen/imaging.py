@@ -116,9 +116,7 @@ def image_task(
             observations, rays = _image_targets(caster, ground_truth, poses, config)
             final_gt = ground_truth
         else:
-            observations, rays, new_keys, new_points = _image_pixels(
-                caster, vertices, ground_truth, poses, config
-            )
+            observations, rays, new_keys, new_points = _image_pixels(caster, vertices, ground_truth, poses, config)
             final_gt = ground_truth.with_hits(new_keys, new_points)
     return TaskImaging(
         observations=tuple(observations),

@@ -77,9 +77,7 @@ class KeyGrid:
         self.size = int(np.prod(self.dims))
 
     @classmethod
-    def around(
-        cls, points: npt.ArrayLike, voxel_size: float, grid_offset: npt.ArrayLike, margin: int = 1
-    ) -> KeyGrid:
+    def around(cls, points: npt.ArrayLike, voxel_size: float, grid_offset: npt.ArrayLike, margin: int = 1) -> KeyGrid:
         """The box of the keys of ``points`` (e.g. a mesh's vertices), grown by ``margin`` keys."""
         p = np.asarray(points, dtype=np.float64)
         low = points_to_keys(p.min(axis=0, keepdims=True), voxel_size, grid_offset)[0] - margin
@@ -104,10 +102,7 @@ class KeyGrid:
         return (shifted[:, 0] * self.dims[1] + shifted[:, 1]) * self.dims[2] + shifted[:, 2]
 
     def keys_of(self, linear: npt.ArrayLike) -> KeyArray:
-        return (
-            np.stack(np.unravel_index(np.asarray(linear, dtype=np.int64), tuple(self.dims)), axis=1)
-            + self.low
-        )
+        return np.stack(np.unravel_index(np.asarray(linear, dtype=np.int64), tuple(self.dims)), axis=1) + self.low
 
     def packed_of(self, linear: npt.ArrayLike) -> KeyArray:
         return pack_keys(self.keys_of(linear))

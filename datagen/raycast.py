@@ -29,9 +29,7 @@ class RayCaster:
             indices=self.faces.astype(np.int32),
         )
         corner = self.vertices[self.faces[:, 0]]
-        self._normals = np.cross(
-            self.vertices[self.faces[:, 1]] - corner, self.vertices[self.faces[:, 2]] - corner
-        )
+        self._normals = np.cross(self.vertices[self.faces[:, 1]] - corner, self.vertices[self.faces[:, 2]] - corner)
         self._plane_offsets = np.einsum("ij,ij->i", self._normals, corner)
 
     def first_hits(

@@ -13,9 +13,7 @@ from datagen.viewspace import ViewSpace
 from schemas.config import GenerationConfig
 
 
-def scan_task(
-    prepared: PreparedObject, rotation: int, config: GenerationConfig, view_space: ViewSpace
-) -> TaskImaging:
+def scan_task(prepared: PreparedObject, rotation: int, config: GenerationConfig, view_space: ViewSpace) -> TaskImaging:
     """P_gt and every view's observation for task (object, rotation)."""
     if not (0 <= rotation < config.rotations):
         raise ValueError(f"rotation {rotation} is outside 0..{config.rotations - 1}")

@@ -17,9 +17,7 @@ class Purpose(IntEnum):
     REFINER_NOISE = 2
 
 
-def stream(
-    seed: int, object_id: str, rotation: int, purpose: Purpose, mask: int | None = None
-) -> np.random.Generator:
+def stream(seed: int, object_id: str, rotation: int, purpose: Purpose, mask: int | None = None) -> np.random.Generator:
     """The generator for one use within one task (and one case, for refiner noise)."""
     entropy = [seed, int(object_id[:16], 16), rotation, int(purpose)]
     if mask is not None:

@@ -58,9 +58,7 @@ def read_view_space_file(path: Path) -> npt.NDArray[np.float64]:
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
-        raise ViewSpaceError(
-            f"{path}: cannot read view-space file ({exc.strerror}); check the path"
-        ) from None
+        raise ViewSpaceError(f"{path}: cannot read view-space file ({exc.strerror}); check the path") from None
     return _parse_view_space(text, str(path))
 
 

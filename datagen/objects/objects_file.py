@@ -108,9 +108,7 @@ def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectE
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or not key or not value:
-            return fail(
-                f"malformed option {pair!r}; options are key=value with keys {', '.join(ALLOWED_KEYS)}"
-            )
+            return fail(f"malformed option {pair!r}; options are key=value with keys {', '.join(ALLOWED_KEYS)}")
         if key not in ALLOWED_KEYS:
             return fail(f"unknown key {key!r}; allowed keys: {', '.join(ALLOWED_KEYS)}")
         if key in options:
@@ -129,9 +127,7 @@ def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectE
     try:
         data = mesh_path.read_bytes()
     except FileNotFoundError:
-        return fail(
-            f"mesh file not found: {mesh_path}; fix the path (relative paths start at the objects file)"
-        )
+        return fail(f"mesh file not found: {mesh_path}; fix the path (relative paths start at the objects file)")
     except IsADirectoryError:
         return fail(f"{mesh_path} is a folder; name a mesh file (OBJ, PLY, STL, OFF, GLB...)")
     except OSError as exc:
@@ -159,17 +155,13 @@ def _object_options(options: dict[str, str]) -> ObjectOptions:
         try:
             size = float(options["size"])
         except ValueError:
-            raise ValueError(
-                f"size={options['size']!r} is not a number; give metres, e.g. size=0.12"
-            ) from None
+            raise ValueError(f"size={options['size']!r} is not a number; give metres, e.g. size=0.12") from None
         if not math.isfinite(size) or size <= 0:
             raise ValueError(f"size={options['size']} must be a positive number of metres, e.g. size=0.12")
     return ObjectOptions(units=units, up=up, size=size)  # type: ignore[arg-type]
 
 
-def _builtin_spec(
-    target: str, name: str | None, options: ObjectOptions, origin: str, number: int
-) -> ObjectEntry:
+def _builtin_spec(target: str, name: str | None, options: ObjectOptions, origin: str, number: int) -> ObjectEntry:
     shape = target[len(BUILTIN_PREFIX) :]
     try:
         identity = builtins.builtin_generator_identity(shape)
@@ -232,6 +224,4 @@ def _flag_duplicates(entries: list[ObjectEntry]) -> list[ObjectEntry]:
 
 
 def _line_error(entry: ObjectSpec, message: str) -> ObjectLineError:
-    return ObjectLineError(
-        origin=entry.origin.rsplit(":", 1)[0], line=entry.line, text=entry.source, message=message
-    )
+    return ObjectLineError(origin=entry.origin.rsplit(":", 1)[0], line=entry.line, text=entry.source, message=message)

@@ -94,15 +94,11 @@ def prepare_object(spec: ObjectSpec, config: GenerationConfig) -> PreparedObject
     mesh.update_faces(mesh.nondegenerate_faces())
     mesh.remove_unreferenced_vertices()
     if len(mesh.faces) == 0 or float(mesh.area) <= MIN_AREA_M2 * max(1.0, _extent(mesh.vertices)) ** 2:
-        raise ObjectError(
-            f"{where}: the mesh has zero surface area (all faces degenerate); it cannot be imaged"
-        )
+        raise ObjectError(f"{where}: the mesh has zero surface area (all faces degenerate); it cannot be imaged")
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
 
     units = spec.options.units
-    units_guessed = (
-        units if units != "auto" else ("mm" if np.abs(vertices).max() >= config.mm_threshold else "m")
-    )
+    units_guessed = units if units != "auto" else ("mm" if np.abs(vertices).max() >= config.mm_threshold else "m")
     unit_scale = 0.001 if units_guessed == "mm" else 1.0
     vertices = vertices * unit_scale
     if spec.options.up == "y":

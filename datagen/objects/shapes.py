@@ -187,9 +187,7 @@ def revolve_profile(profile: Polygon, sections: int) -> trimesh.Trimesh:
 
 def _wall(centerline: Sequence[tuple[float, float]], wall: float, resolution: int = 4) -> Polygon:
     """A wall of thickness ``wall`` around a centre line in the (r, z) plane, with rounded rims."""
-    band = LineString(centerline).buffer(
-        wall / 2.0, quad_segs=resolution, cap_style="round", join_style="round"
-    )
+    band = LineString(centerline).buffer(wall / 2.0, quad_segs=resolution, cap_style="round", join_style="round")
     return _clip_to_half_plane(band)
 
 
@@ -219,10 +217,7 @@ def _smooth_curve(points: Sequence[tuple[float, float]], samples: int) -> list[t
         p0, p1, p2, p3 = padded[i - 1], padded[i], padded[i + 1], padded[i + 2]
         for t in np.linspace(0.0, 1.0, samples, endpoint=False):
             point = 0.5 * (
-                2 * p1
-                + (p2 - p0) * t
-                + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t**2
-                + (3 * p1 - p0 - 3 * p2 + p3) * t**3
+                2 * p1 + (p2 - p0) * t + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t**2 + (3 * p1 - p0 - 3 * p2 + p3) * t**3
             )
             out.append((float(point[0]), float(point[1])))
     out.append((float(pts[-1, 0]), float(pts[-1, 1])))
@@ -368,17 +363,13 @@ def capsule(length: float = 0.11, radius: float = 0.022, sections: int = 48) -> 
     if length <= 2 * radius:
         raise ShapeError("capsule: length must exceed the diameter")
     half = length / 2.0 - radius
-    profile = _clip_to_half_plane(
-        LineString([(0.0, -half), (0.0, half)]).buffer(radius, quad_segs=sections // 4)
-    )
+    profile = _clip_to_half_plane(LineString([(0.0, -half), (0.0, half)]).buffer(radius, quad_segs=sections // 4))
     mesh = revolve_profile(profile, sections)
     mesh.apply_transform(trimesh.transformations.rotation_matrix(math.pi / 2, [0.0, 1.0, 0.0]))
     return _finish(mesh, "capsule")
 
 
-def cone(
-    radius: float = 0.045, height: float = 0.11, tip_radius: float = 0.0, sections: int = 64
-) -> trimesh.Trimesh:
+def cone(radius: float = 0.045, height: float = 0.11, tip_radius: float = 0.0, sections: int = 64) -> trimesh.Trimesh:
     """A cone (or a frustum when ``tip_radius`` > 0) standing on its base."""
     if tip_radius > 0:
         profile = Polygon([(0.0, 0.0), (radius, 0.0), (tip_radius, height), (0.0, height)])
@@ -448,9 +439,7 @@ def lamp(
         .intersection(box(0.0, 0.0, base_radius + 1.0, base_height + 1.0))
     )
     stem = box(0.0, 0.0, stem_radius, top)
-    shade = _wall(
-        [(0.0, top), (shade_radius * 0.45, top), (shade_radius - wall / 2.0, top - shade_height)], wall
-    )
+    shade = _wall([(0.0, top), (shade_radius * 0.45, top), (shade_radius - wall / 2.0, top - shade_height)], wall)
     return _finish(revolve_profile(_merge_profiles([base, stem, shade]), sections), "lamp")
 
 
@@ -523,9 +512,7 @@ def _transported_normals(tangents: FloatArray) -> FloatArray:
         if i < count:
             normals[i] = current
     # ``current`` is now the transported first normal after one full turn
-    twist = math.atan2(
-        float(np.dot(np.cross(current, normals[0]), tangents[0])), float(np.dot(current, normals[0]))
-    )
+    twist = math.atan2(float(np.dot(np.cross(current, normals[0]), tangents[0])), float(np.dot(current, normals[0])))
     angles = twist * np.arange(count) / count
     binormals = np.cross(tangents, normals)
     return np.cos(angles)[:, None] * normals + np.sin(angles)[:, None] * binormals
@@ -697,9 +684,7 @@ def chair(
         for sx in (-1.0, 1.0)
     ]
     rail_height = back_height * 0.4
-    rail = _box(
-        [seat_size, back_thickness, rail_height], [0.0, back_y, top + back_height - rail_height / 2.0]
-    )
+    rail = _box([seat_size, back_thickness, rail_height], [0.0, back_y, top + back_height - rail_height / 2.0])
     return _finish(union([*legs, seat, *posts, rail]), "chair")
 
 
@@ -751,9 +736,7 @@ def gear(
             outline.append((radius * math.cos(angle), radius * math.sin(angle)))
     body = trimesh.creation.extrude_polygon(Polygon(outline), thickness)
     if hub_height > 0:
-        hub = _cylinder(
-            hub_radius, hub_height + 0.001, [0.0, 0.0, thickness + (hub_height - 0.001) / 2.0], sections=48
-        )
+        hub = _cylinder(hub_radius, hub_height + 0.001, [0.0, 0.0, thickness + (hub_height - 0.001) / 2.0], sections=48)
         body = union([body, hub])
     bore = _cylinder(bore_radius, 2 * (thickness + hub_height), [0.0, 0.0, thickness], sections=32)
     return _finish(difference(body, [bore]), "gear")
@@ -772,10 +755,7 @@ def hex_nut(
     """
     circumradius = across_flats / math.sqrt(3.0)
     hexagon = Polygon(
-        [
-            (circumradius * math.cos(k * math.pi / 3), circumradius * math.sin(k * math.pi / 3))
-            for k in range(6)
-        ]
+        [(circumradius * math.cos(k * math.pi / 3), circumradius * math.sin(k * math.pi / 3)) for k in range(6)]
     )
     prism = trimesh.creation.extrude_polygon(hexagon, height)
     face_radius = circumradius - chamfer
@@ -783,9 +763,7 @@ def hex_nut(
     if widest <= circumradius:
         raise ShapeError("hex_nut: the nut is too flat for this chamfer")
     double_cone = revolve_profile(
-        Polygon(
-            [(0.0, 0.0), (face_radius, 0.0), (widest, height / 2.0), (face_radius, height), (0.0, height)]
-        ),
+        Polygon([(0.0, 0.0), (face_radius, 0.0), (widest, height / 2.0), (face_radius, height), (0.0, height)]),
         sections,
     )
     # turn the cone half a facet so none of its vertices lands exactly on a corner edge of the prism:
@@ -805,9 +783,7 @@ def chess_pawn(
     """A chess pawn: a stepped base, a tapering body, a collar and a ball head."""
     base = box(0.0, 0.0, base_radius, 0.012).buffer(0.002, quad_segs=3)
     step = box(0.0, 0.0, base_radius * 0.8, 0.02)
-    body = Polygon(
-        [(0.0, 0.0), (base_radius * 0.62, 0.0), (base_radius * 0.3, height * 0.62), (0.0, height * 0.62)]
-    )
+    body = Polygon([(0.0, 0.0), (base_radius * 0.62, 0.0), (base_radius * 0.3, height * 0.62), (0.0, height * 0.62)])
     collar = box(0.0, height * 0.6, head_radius * 1.2, height * 0.65)
     neck = box(0.0, height * 0.6, head_radius * 0.6, height - head_radius)
     head = Point(0.0, height - head_radius).buffer(head_radius, quad_segs=10)
@@ -840,8 +816,7 @@ def _primitive(kind: int, size: float, sections: int) -> tuple[trimesh.Trimesh, 
         mesh.apply_translation([0.0, 0.0, size / 2.0])
     else:
         raise ShapeError(
-            f"primitive kind {kind} is unknown; use 0..{len(PRIMITIVE_KINDS) - 1} "
-            f"({', '.join(PRIMITIVE_KINDS)})"
+            f"primitive kind {kind} is unknown; use 0..{len(PRIMITIVE_KINDS) - 1} ({', '.join(PRIMITIVE_KINDS)})"
         )
     return mesh, height
 

@@ -333,9 +333,7 @@ def draw_shape(seed: int, index: int) -> tuple[str, Params, trimesh.Trimesh]:
 def ply_bytes(mesh: trimesh.Trimesh) -> bytes:
     """Binary PLY of the bare geometry: a fresh mesh so no cached normals or visuals leak into the file."""
     bare = trimesh.Trimesh(vertices=np.asarray(mesh.vertices), faces=np.asarray(mesh.faces), process=False)
-    data: Any = trimesh.exchange.ply.export_ply(
-        bare, encoding="binary", vertex_normal=False, include_attributes=False
-    )
+    data: Any = trimesh.exchange.ply.export_ply(bare, encoding="binary", vertex_normal=False, include_attributes=False)
     return bytes(data)
 
 
@@ -345,14 +343,8 @@ def synthesize(count: int, seed: int, out_dir: Path) -> Path:
     Lines read ``synth_0000.ply name=synth_0000_mug``: paths are relative to the objects file, and the
     name carries the family so listings are readable.
     """
-    if (
-        isinstance(count, bool)
-        or not isinstance(count, int | np.integer)
-        or not 1 <= count <= MAX_SYNTH_COUNT
-    ):
-        raise InvalidArgument(
-            f"count={count!r} is out of range; synthesize between 1 and {MAX_SYNTH_COUNT} meshes"
-        )
+    if isinstance(count, bool) or not isinstance(count, int | np.integer) or not 1 <= count <= MAX_SYNTH_COUNT:
+        raise InvalidArgument(f"count={count!r} is out of range; synthesize between 1 and {MAX_SYNTH_COUNT} meshes")
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise InvalidArgument(f"seed={seed!r} is not allowed; use a non-negative integer")
     out_dir = Path(out_dir)
