@@ -184,7 +184,7 @@ def greedy_cover(rows: MaskArray, candidates: list[int]) -> int:
     return chosen
 
 
-def lexicographic_cover(rows: MaskArray, candidates: list[int], size: int, node_budget: int = 50_000) -> int | None:
+def lexicographic_cover(rows: MaskArray, candidates: list[int], size: int, node_budget: int = 4_000) -> int | None:
     """The lexicographically smallest sorted tuple of ``size`` views covering every row, by a
     depth-first search in lexicographic order (None if the budget runs out first).
 

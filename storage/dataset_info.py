@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pydantic import ValidationError
+
 from schemas.dataset import DATASET_FILE, DatasetInfo
 from storage.location import Location, StorageError
 
@@ -9,7 +11,12 @@ from storage.location import Location, StorageError
 def read_info(location: Location) -> DatasetInfo:
     if not location.exists(DATASET_FILE):
         raise StorageError(f"{location.url}: no {DATASET_FILE} here; this is not a datagen dataset (check the URL)")
-    return DatasetInfo.model_validate_json(location.read_bytes(DATASET_FILE))
+    try:
+        return DatasetInfo.model_validate_json(location.read_bytes(DATASET_FILE))
+    except ValidationError as exc:
+        raise StorageError(
+            f"{location.url}: {DATASET_FILE} is unreadable ({exc.error_count()} problems); the dataset is corrupt"
+        ) from None
 
 
 def init_dataset(location: Location, info: DatasetInfo) -> DatasetInfo:

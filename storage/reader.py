@@ -170,10 +170,10 @@ class Dataset:
                 ),
             )
         if rotations is not None:
-            wanted_r = [rotations] if isinstance(rotations, int) else list(rotations)
+            wanted_r = [int(rotations)] if isinstance(rotations, (int, np.integer)) else [int(r) for r in rotations]
             keep = pc.and_(keep, pc.is_in(self.index["rotation"], pa.array(wanted_r, pa.int16())))
         if case_sizes is not None:
-            wanted_c = [case_sizes] if isinstance(case_sizes, int) else list(case_sizes)
+            wanted_c = [int(case_sizes)] if isinstance(case_sizes, (int, np.integer)) else [int(c) for c in case_sizes]
             keep = pc.and_(keep, pc.is_in(self.index["case_size"], pa.array(wanted_c, pa.int16())))
         return self.select(np.flatnonzero(keep.to_numpy(zero_copy_only=False)))
 

@@ -18,7 +18,11 @@ from schemas.shard import ShardAttributes, array_names
 from storage.location import Location
 
 KEY_CHUNK_ROWS = 32_768
-COMPRESSOR = zarr.codecs.BloscCodec(cname="zstd", clevel=3, shuffle=zarr.codecs.BloscShuffle.shuffle)
+COMPRESSORS = (
+    zarr.codecs.BloscCodec(cname="zstd", clevel=3, shuffle=zarr.codecs.BloscShuffle.shuffle),
+    # A checksum per chunk: Blosc alone may decode a truncated chunk into garbage without an error.
+    zarr.codecs.Crc32cCodec(),
+)
 
 
 def zarr_store(location: Location, relative: str, read_only: bool) -> Any:
@@ -48,11 +52,11 @@ def write_shard_group(
                 dtype=data.dtype,
                 chunks=(rows, 3),
                 shards=(shard_rows, 3),
-                compressors=COMPRESSOR,
+                compressors=COMPRESSORS,
             )
         else:
             chunks = tuple(max(1, s) for s in data.shape)
-            array = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=chunks, compressors=COMPRESSOR)
+            array = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=chunks, compressors=COMPRESSORS)
         if data.size:
             array[...] = data
     group.attrs.put(attributes.model_dump(mode="json"))
@@ -84,6 +88,11 @@ class ShardReader:
 
     def array_shape(self, name: str) -> tuple[int, ...]:
         return tuple(self._array(name).shape)
+
+    def chunks_complete(self, name: str) -> bool:
+        """Whether every chunk of an array is stored (a missing chunk would read as zeros)."""
+        array = self._array(name)
+        return array.size == 0 or array.nchunks_initialized == array.nchunks
 
     def array_dtype(self, name: str) -> np.dtype[Any]:
         return np.dtype(self._array(name).dtype)

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pyarrow.parquet as pq
+from pydantic import ValidationError
 
 from schemas.index import INDEX_SCHEMA, CommitRecord
 from schemas.shard import (
@@ -35,7 +36,7 @@ from storage.dataset_info import read_info
 from storage.location import Location, StorageError, open_location
 from storage.reader import load_index
 from storage.shards import ShardReader
-from storage.writer import committed_tasks
+from storage.writer import COMMITS
 
 SAMPLED_ROWS_PER_SHARD = 8
 
@@ -54,12 +55,25 @@ def validate(url: str, full: bool = False, seed: int = 0, storage_options: dict[
     if info.schema_version != SCHEMA_VERSION:
         problems.append(f"dataset.json: schema version {info.schema_version}, this reader knows {SCHEMA_VERSION}")
     num_views, alpha = info.num_views, info.config.alpha
-    commits = committed_tasks(location)
+    commits, unreadable = _read_commits(location)
+    problems.extend(unreadable)
     rng = np.random.default_rng(seed)
     for record in commits:
         problems.extend(_check_shard(location, record, num_views, alpha, full, rng))
     problems.extend(_check_index(location, commits))
     return problems
+
+
+def _read_commits(location: Location) -> tuple[list[CommitRecord], list[str]]:
+    records, problems = [], []
+    for name in location.listdir(COMMITS):
+        if not name.endswith(".json"):
+            continue
+        try:
+            records.append(CommitRecord.model_validate_json(location.read_bytes(f"{COMMITS}/{name}")))
+        except (ValidationError, OSError) as exc:
+            problems.append(f"{COMMITS}/{name}: unparsable commit record ({type(exc).__name__}); re-run the task")
+    return sorted(records, key=lambda r: r.task_id), problems
 
 
 def _check_shard(
@@ -79,6 +93,10 @@ def _check_shard(
     if missing:
         yield f"{where}: missing arrays {missing}"
         return
+    incomplete = [name for name in array_names() if not shard.chunks_complete(name)]
+    if incomplete:
+        yield f"{where}: arrays with missing chunks {incomplete}; the shard is truncated"
+        return
     try:
         arrays = {name: shard.array(name) for name in array_names()}
     except Exception as exc:
@@ -92,6 +110,8 @@ def _check_shard(
     yield from shape_problems
     if shape_problems:
         return
+    yield from _check_sorted_sets(where, arrays, per_sample=True)
+    yield from _check_sorted_sets(where, arrays, per_sample=False)
     too_wide = (masks >> np.uint64(num_views)) != 0 if num_views < 64 else np.zeros_like(masks, dtype=bool)
     for row in np.flatnonzero(too_wide.any(axis=1)):
         yield f"{where} row {row}: mask has bits beyond the {num_views} views"
@@ -122,6 +142,24 @@ def _check_key_sets(where: str, arrays: dict[str, npt.NDArray[Any]], count: int,
     gt = arrays[GT_KEYS]
     if gt.dtype != KEY_DTYPE or gt.ndim != 2 or gt.shape[1] != 3:
         yield f"{where}: {GT_KEYS} has shape {gt.shape} {gt.dtype}, expected (G, 3) int16"
+    elif (np.diff(_packed(gt)) <= 0).any():
+        yield f"{where}: {GT_KEYS} is not sorted and unique"
+
+
+def _check_sorted_sets(where: str, arrays: dict[str, npt.NDArray[Any]], per_sample: bool) -> Iterator[str]:
+    """Every key set is sorted (x, y, z) and unique: packed values strictly increase in a segment."""
+    for name in KEY_SETS if per_sample else TASK_SETS:
+        keys, offsets = arrays[keys_array(name)], arrays[offsets_array(name)]
+        if keys.shape[0] < 2:
+            continue
+        rising = np.diff(_packed(keys)) > 0
+        starts = offsets[1:-1]
+        rising[starts[(starts > 0) & (starts < keys.shape[0])] - 1] = True  # segment boundaries
+        if not rising.all():
+            position = int(np.flatnonzero(~rising)[0]) + 1
+            row = int(np.searchsorted(offsets, position, side="right")) - 1
+            label = "row" if per_sample else "view"
+            yield f"{where} {label} {row}: {keys_array(name)} is not sorted and unique (zeroed or corrupt data)"
 
 
 def _packed(keys: npt.NDArray[np.int16]) -> npt.NDArray[np.int64]:
@@ -178,14 +216,18 @@ def _check_index(location: Location, commits: list[CommitRecord]) -> Iterator[st
         yield f"index: cannot be read ({type(exc).__name__}: {exc})"
         return
     sample_ids = index.column("sample_id").to_pylist()
+    shards = index.column("shard").to_pylist()
+    rows = index.column("row").to_pylist()
     seen: dict[str, int] = {}
     for position, sample in enumerate(sample_ids):
         if sample in seen:
-            yield f"index row {position}: duplicate sample id {sample} (first at row {seen[sample]})"
+            first = seen[sample]
+            yield (
+                f"{shards[position]} row {rows[position]}: duplicate sample id {sample} "
+                f"(also {shards[first]} row {rows[first]})"
+            )
         else:
             seen[sample] = position
-    shards = index.column("shard").to_pylist()
-    rows = index.column("row").to_pylist()
     for position, (shard, row) in enumerate(zip(shards, rows, strict=True)):
         owner = committed.get(shard)
         if owner is None:
