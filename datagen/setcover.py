@@ -168,7 +168,8 @@ def solve_cover(rows: npt.ArrayLike, num_views: int, time_limit: float = 10.0, t
         size, proof = solved, "mip"
     chosen = lexicographic_cover(remaining, candidates, size)
     if chosen is None:
-        chosen = _solve_lexicographic(remaining, candidates, size, time_limit, threads)
+        tie_break = _fix_lexicographic if len(candidates) > EXACT_WEIGHT_VIEWS else _solve_lexicographic
+        chosen = tie_break(remaining, candidates, size, time_limit, threads)
     return CoverSolution(forced | chosen, proof)
 
 
@@ -238,7 +239,8 @@ def _lp_bound(rows: MaskArray, candidates: list[int], time_limit: float, threads
     )
     if values is None:
         raise LabelError("HiGHS reports the cover relaxation infeasible")
-    return math.ceil(sum(values) - 1e-6)
+    # The tolerance may only weaken the bound (a lower bound stays valid), never strengthen it.
+    return math.ceil(sum(values) - 1e-4)
 
 
 def _incidence(rows: MaskArray, candidates: list[int]) -> tuple[list[int], list[int]]:
@@ -248,7 +250,17 @@ def _incidence(rows: MaskArray, candidates: list[int]) -> tuple[list[int], list[
     return starts, np.nonzero(bits)[1].tolist()
 
 
+_scheduler_threads: list[int] = []
+
+
 def _highs(threads: int, time_limit: float) -> highspy.Highs:
+    # HiGHS keeps one global thread pool per process, sized at its first run; a model asking for
+    # another size fails ("Not Set") unless the pool is reset first.
+    if _scheduler_threads and _scheduler_threads[0] != threads:
+        highspy.Highs.resetGlobalScheduler(True)
+        _scheduler_threads.clear()
+    if not _scheduler_threads:
+        _scheduler_threads.append(threads)
     solver = highspy.Highs()
     solver.setOptionValue("output_flag", False)
     solver.setOptionValue("threads", threads)
