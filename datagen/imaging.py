@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from datagen.camera import Pose, cone_pixel_rays, inside_image, look_at, project
+from datagen.camera import Pose, cone_pixel_rays, inside_image, look_at, max_fitting_radius, project
 from datagen.ground_truth import GroundTruth
 from datagen.keys import KeyGrid, points_to_packed, unpack_keys
 from datagen.raycast import RayCaster
@@ -70,12 +70,14 @@ class Observation:
         if sum(len(o.views) for o in ordered) != len(origin_of):
             raise ValueError("a view appears in more than one observation")
         views = tuple(sorted(origin_of))
+        point_views = np.concatenate([o.point_views for o in ordered])
+        rows = np.argsort(point_views, kind="stable")  # rows in view order, each view's own order kept
         return Observation(
             views=views,
             origins=np.stack([origin_of[v] for v in views]),
-            points=np.concatenate([o.points for o in ordered]),
-            point_views=np.concatenate([o.point_views for o in ordered]),
-            pixels=np.concatenate([o.pixels for o in ordered]),
+            points=np.concatenate([o.points for o in ordered])[rows],
+            point_views=point_views[rows],
+            pixels=np.concatenate([o.pixels for o in ordered])[rows],
             keys=np.unique(np.concatenate([o.keys for o in ordered])),
         )
 
@@ -131,16 +133,23 @@ def _image_targets(
     caster: RayCaster, gt: GroundTruth, poses: Sequence[Pose], config: GenerationConfig
 ) -> tuple[list[Observation], list[int]]:
     observations, rays = [], []
+    radius = float(np.sqrt(np.einsum("ij,ij->i", gt.points, gt.points).max())) if len(gt) else 0.0
+    everything = np.arange(len(gt))
     for view, pose in enumerate(poses):
-        camera_points = pose.world_to_camera(gt.points)
-        uv = project(config.camera, camera_points)
-        candidates = np.flatnonzero(inside_image(config.camera, uv, camera_points[:, 2]))
+        if radius <= max_fitting_radius(config.camera, float(np.linalg.norm(pose.origin))):
+            candidates = everything  # the sphere holding P_gt projects inside the image
+        else:
+            camera_points = pose.world_to_camera(gt.points)
+            uv = project(config.camera, camera_points)
+            candidates = np.flatnonzero(inside_image(config.camera, uv, camera_points[:, 2]))
         offsets = gt.points[candidates] - pose.origin
-        lengths = np.sqrt(np.einsum("ij,ij->i", offsets, offsets))
-        directions = offsets / lengths[:, None]
-        distance, _ = caster.first_hits(pose.origin, directions, config.camera.max_range)
-        hit = np.flatnonzero(np.isfinite(distance))
-        hit_points = pose.origin + directions[hit] * distance[hit, None]
+        within = np.einsum("ij,ij->i", offsets, offsets) <= config.camera.max_range**2
+        if not within.all():
+            candidates, offsets = candidates[within], offsets[within]
+        # Rays along the unnormalised offsets: the target sits at t = 1, and the first hit anywhere
+        # on the way is at t <= 1 (Embree and the float64 refinement both accept any direction length).
+        hit, distance, _, hit_directions = caster.cast(pose.origin, offsets, np.inf)
+        hit_points = pose.origin + hit_directions * distance[:, None]
         hit_keys = points_to_packed(hit_points, config.voxel_size, config.grid_offset)
         same_key = hit_keys == gt.keys[candidates[hit]]
         visible = candidates[hit[same_key]]
@@ -151,7 +160,7 @@ def _image_targets(
                 origins=pose.origin[None, :].copy(),
                 points=hit_points[same_key].astype(np.float32),
                 point_views=np.full(visible.size, view, dtype=np.uint8),
-                pixels=uv[visible].astype(np.float32),
+                pixels=project(config.camera, pose.world_to_camera(gt.points[visible])).astype(np.float32),
                 keys=gt.keys[visible],
             )
         )
@@ -181,9 +190,8 @@ def _image_pixels(
             ray_tables[distance_to_centre] = cone_pixel_rays(config.camera, distance_to_centre, radius)
         camera_directions, pixels = ray_tables[distance_to_centre]
         directions = pose.camera_to_world_dirs(camera_directions)
-        distance, _ = caster.first_hits(pose.origin, directions, config.camera.max_range)
-        hit = np.flatnonzero(np.isfinite(distance))
-        hit_points = pose.origin + directions[hit] * distance[hit, None]
+        hit, distance, _, hit_directions = caster.cast(pose.origin, directions, config.camera.max_range)
+        hit_points = pose.origin + hit_directions * distance[:, None]
         cells = grid.linear_of_points(hit_points, config.voxel_size, config.grid_offset)
         unseen = np.flatnonzero(~in_gt[cells])
         new_cells.append(cells[unseen])
