@@ -99,7 +99,7 @@ class GenerationConfig(_Frozen):
     # Section 3: imaging
     imaging: Literal["targets", "pixels"] = "targets"
     # Section 4: refinement
-    refiner: Literal["none"] = "none"
+    refiner: Literal["none", "carve"] = "none"
     band: PositiveFloat = 0.01
     # Section 5: filter
     alpha: int = Field(10, ge=1, le=MAX_VIEWS, strict=True)

@@ -15,9 +15,10 @@ from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
+from scipy import ndimage
 
 from datagen.imaging import Observation
-from datagen.keys import pack_keys, unpack_keys
+from datagen.keys import KeyGrid, unpack_keys
 
 
 @dataclass(frozen=True)
@@ -60,10 +61,20 @@ def band_offsets(radius_sq: int) -> npt.NDArray[np.int64]:
 
 
 def band_keys(keys: npt.NDArray[np.int64], radius_sq: int) -> npt.NDArray[np.int64]:
-    """Every key within the band of a set of packed keys (the keys themselves included)."""
+    """Every key within the band of a set of packed keys (the keys themselves included), sorted.
+
+    A binary dilation of the keys' box by the ball of offsets: linear in the box, where adding all
+    515 offsets to every key and sorting would be ~50x slower.
+    """
     if keys.size == 0:
         return keys
-    centres = unpack_keys(keys)
     offsets = band_offsets(radius_sq)
-    shifted = (centres[:, None, :] + offsets[None, :, :]).reshape(-1, 3)
-    return np.unique(pack_keys(shifted))
+    reach = int(np.abs(offsets).max())
+    centres = unpack_keys(keys)
+    grid = KeyGrid(centres.min(axis=0) - reach, centres.max(axis=0) + reach)
+    occupied = np.zeros(grid.size, dtype=bool)
+    occupied[grid.linear_of_keys(centres)] = True
+    ball = np.zeros((2 * reach + 1,) * 3, dtype=bool)
+    ball[tuple((offsets + reach).T)] = True
+    dilated = ndimage.binary_dilation(occupied.reshape(tuple(grid.dims)), structure=ball)
+    return grid.packed_of(np.flatnonzero(dilated))
