@@ -7,10 +7,12 @@ from typing import Any
 
 from datagen.config_io import load_config
 from datagen.engine import ProgressCallback, run_job
+from datagen.errors import DatagenError
 from datagen.planning import plan_job
 from datagen.settings import RunSettings
 from jobs.ledger import Job, Ledger
 from schemas.config import GenerationConfig
+from storage.location import StorageError
 
 LEDGER_FILE = "ledger.db"
 
@@ -66,14 +68,18 @@ def resume(
     ledger = ledger_for(settings)
     try:
         ledger.reopen_job(job_id)
-        return run_job(
-            ledger,
-            job_id,
-            address=settings.ray_address,
-            num_cpus=settings.num_workers,
-            storage_options=storage_options,
-            progress=progress,
-        )
+        try:
+            return run_job(
+                ledger,
+                job_id,
+                address=settings.ray_address,
+                num_cpus=settings.num_workers,
+                storage_options=storage_options,
+                progress=progress,
+            )
+        except (DatagenError, StorageError) as exc:
+            ledger.fail_job(job_id, str(exc))  # a job that cannot start does not linger as pending
+            raise
     finally:
         ledger.close()
 

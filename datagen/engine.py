@@ -176,7 +176,11 @@ def run_job(
             "failed": counts.get(FAILED, 0) + len(spec.get("line_errors", [])),
             "samples": state.samples,
             "line_errors": spec.get("line_errors", []),
-            "failures": [f"{t.task_id}: {t.error}" for t in ledger.tasks(job_id) if t.state == FAILED],
+            "failures": [
+                f"{t.spec.get('object', {}).get('origin', '')}: {t.task_id}: {t.error}"
+                for t in ledger.tasks(job_id)
+                if t.state == FAILED
+            ],
         }
         ledger.finish_job(job_id, summary, other_failures=len(spec.get("line_errors", [])))
     if progress:

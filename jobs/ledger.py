@@ -13,7 +13,7 @@ import json
 import sqlite3
 import time
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -104,13 +104,31 @@ class Ledger:
         except (OSError, sqlite3.Error) as exc:
             raise LedgerError(f"{self.path}: cannot open the job ledger ({exc}); check --home / DATAGEN_HOME") from None
         self._db.row_factory = sqlite3.Row
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.execute(f"PRAGMA busy_timeout={int(timeout * 1000)}")
-        with self._transaction() as db:
-            for statement in _SCHEMA.strip().split(";"):
-                if statement.strip():
-                    db.execute(statement)
+        self._retry_locked(lambda: self._db.execute("PRAGMA journal_mode=WAL"), timeout)
+        self._db.execute("PRAGMA synchronous=NORMAL")
+
+        def create_schema() -> None:
+            with self._transaction() as db:
+                for statement in _SCHEMA.strip().split(";"):
+                    if statement.strip():
+                        db.execute(statement)
+
+        self._retry_locked(create_schema, timeout)
+
+    @staticmethod
+    def _retry_locked(action: Callable[[], object], timeout: float) -> None:
+        """Switching to WAL or creating the schema needs a lock that SQLite does not wait for when
+        several processes open a new ledger at once; retry with a short back-off."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                action()
+                return
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
 
     def close(self) -> None:
         self._db.close()
@@ -185,6 +203,16 @@ class Ledger:
             )
         return self.job(job_id)
 
+    def fail_job(self, job_id: str, message: str) -> Job:
+        """A job that cannot run at all (its output is unusable, say): failed, with the reason."""
+        self.job(job_id)
+        with self._transaction() as db:
+            db.execute(
+                "UPDATE jobs SET state = ?, summary = ?, updated = ?, owner = NULL WHERE job_id = ?",
+                (FAILED, json.dumps({"error": message}, sort_keys=True), time.time(), job_id),
+            )
+        return self.job(job_id)
+
     def cancel_job(self, job_id: str) -> Job:
         """Cancel a job and its unfinished tasks; finished tasks keep their state."""
         self.job(job_id)
@@ -248,7 +276,10 @@ class Ledger:
                     "lease_expires = ?, updated = ? WHERE job_id = ? AND task_id = ?",
                     (RUNNING, attempt_id, owner, now + lease, now, job_id, row["task_id"]),
                 )
-                claims.append(Claim(task=_task(row), attempt_id=attempt_id))
+                updated = db.execute(
+                    "SELECT * FROM tasks WHERE job_id = ? AND task_id = ?", (job_id, row["task_id"])
+                ).fetchone()
+                claims.append(Claim(task=_task(updated), attempt_id=attempt_id))
         return claims
 
     def renew(self, job_id: str, owner: str, lease: float) -> None:

@@ -24,7 +24,8 @@ def export_air(url: str, out: str | Path, num_points: int = 2048, seed: int = 0,
     if num_points < 1:
         raise StorageError(f"--points {num_points}: give a positive number of points per cloud")
     dataset = open_dataset(url)
-    names = dataset.index.column("object_name").to_pylist()
+    folders = _object_folders(dataset)
+    names = [folders[o] for o in dataset.index.column("object_id").to_pylist()]
     rotations = dataset.index.column("rotation").to_pylist()
     rows = dataset.index.column("row").to_pylist()
     for i in range(len(dataset)):
@@ -32,8 +33,8 @@ def export_air(url: str, out: str | Path, num_points: int = 2048, seed: int = 0,
         folder.mkdir(parents=True, exist_ok=True)
         _write_sample(dataset, i, folder, rows[i], num_points, seed)
     train, val = dataset.split(val_fraction, seed)
-    _write_names(out / "train_split", train)
-    _write_names(out / "test_split", val)
+    _write_names(out / "train_split", train, folders)
+    _write_names(out / "test_split", val, folders)
     return len(dataset)
 
 
@@ -50,6 +51,26 @@ def _write_sample(dataset: Dataset, i: int, folder: Path, row: int, num_points: 
     (folder / f"ids_{row}.txt").write_text("".join(f"{v}\n" for v in range(dataset.num_views) if label >> v & 1))
 
 
-def _write_names(path: Path, dataset: Dataset) -> None:
-    names = sorted(set(dataset.index.column("object_name").to_pylist()))
+def _object_folders(dataset: Dataset) -> dict[str, str]:
+    """One folder name per object: its name, or name plus id prefix when two objects share a name.
+    The authors' loader finds companions by replacing 'cloud' anywhere in the path, so a name
+    containing it is refused."""
+    ids = dataset.index.column("object_id").to_pylist()
+    names = dataset.index.column("object_name").to_pylist()
+    by_id = dict(zip(ids, names, strict=True))
+    counts: dict[str, int] = {}
+    for name in by_id.values():
+        counts[name] = counts.get(name, 0) + 1
+    folders = {}
+    for object_id, name in sorted(by_id.items()):
+        if "cloud" in name:
+            raise StorageError(
+                f"object {name!r}: the authors' loader replaces 'cloud' in the whole path; rename it (name=...)"
+            )
+        folders[object_id] = name if counts[name] == 1 else f"{name}-{object_id[:8]}"
+    return folders
+
+
+def _write_names(path: Path, dataset: Dataset, folders: dict[str, str]) -> None:
+    names = sorted({folders[o] for o in dataset.index.column("object_id").to_pylist()})
     path.write_text("".join(f"{name}\n" for name in names))

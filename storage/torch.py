@@ -56,13 +56,15 @@ class OSVPDataset(TorchDataset[dict[str, torch.Tensor]]):
         return len(self.dataset)
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+        index = range(len(self))[index]  # negative indices as for any sequence
         keys = self.dataset.keys(index, self.source)
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, index]))
         if keys.shape[0] == 0:
             chosen = np.zeros((self.num_points, 3), dtype=np.int16)
         else:
             replace = keys.shape[0] < self.num_points
-            chosen = keys[rng.choice(keys.shape[0], size=self.num_points, replace=replace)]
+            # shuffle=False: the order of a point set carries nothing, and it is ~40% cheaper.
+            chosen = keys[rng.choice(keys.shape[0], size=self.num_points, replace=replace, shuffle=False)]
         view_state, label = self.dataset.masks(index)
         width = self.dataset.num_views
         bits = np.arange(width, dtype=np.uint64)
@@ -75,14 +77,14 @@ class OSVPDataset(TorchDataset[dict[str, torch.Tensor]]):
 
 
 class ShardShuffleSampler(Sampler[int]):
-    """Shuffled order that visits shards one at a time through a mixing buffer (see
+    """Shuffled order that visits shards a few at a time, mixing their samples (see
     `Dataset.shuffled_order`): random enough for training, and each worker keeps hitting the few
     shards it has cached, which is what makes the DataLoader fast."""
 
-    def __init__(self, dataset: OSVPDataset, seed: int = 0, buffer: int = 1024) -> None:
+    def __init__(self, dataset: OSVPDataset, seed: int = 0, shards_mixed: int = 4) -> None:
         self.dataset = dataset
         self.seed = seed
-        self.buffer = buffer
+        self.shards_mixed = shards_mixed
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -92,5 +94,5 @@ class ShardShuffleSampler(Sampler[int]):
         return len(self.dataset)
 
     def __iter__(self) -> Iterator[int]:
-        order = self.dataset.dataset.shuffled_order(self.seed, self.epoch, self.buffer)
+        order = self.dataset.dataset.shuffled_order(self.seed, self.epoch, self.shards_mixed)
         return iter(order.tolist())

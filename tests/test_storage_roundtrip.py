@@ -188,13 +188,13 @@ def test_split_by_object_and_deterministic(local_url: str) -> None:
 def test_shuffled_order(local_url: str) -> None:
     ds = open_dataset(local_url)
     n = len(ds)
-    for buffer in (1024, 8, 1):
-        first = ds.shuffled_order(seed=7, epoch=0, buffer=buffer)
+    for mixed in (1000, 3, 1):
+        first = ds.shuffled_order(seed=7, epoch=0, shards_mixed=mixed)
         assert first.dtype == np.int64
         assert sorted(first.tolist()) == list(range(n))
-        np.testing.assert_array_equal(first, ds.shuffled_order(seed=7, epoch=0, buffer=buffer))
-        assert not np.array_equal(first, ds.shuffled_order(seed=7, epoch=1, buffer=buffer))
-        assert not np.array_equal(first, ds.shuffled_order(seed=8, epoch=0, buffer=buffer))
+        np.testing.assert_array_equal(first, ds.shuffled_order(seed=7, epoch=0, shards_mixed=mixed))
+        assert not np.array_equal(first, ds.shuffled_order(seed=7, epoch=1, shards_mixed=mixed))
+        assert not np.array_equal(first, ds.shuffled_order(seed=8, epoch=0, shards_mixed=mixed))
         assert not np.array_equal(first, np.arange(n))
     ids = [s["sample_id"] for s in ds.iter_shuffled(seed=7, epoch=0)]
     all_ids = ds.index.column("sample_id").to_pylist()

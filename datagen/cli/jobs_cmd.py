@@ -16,7 +16,8 @@ from rich.text import Text
 from datagen.cli.common import console, error_console, user_errors
 from datagen.engine import JobProgress, ProgressCallback
 from datagen.settings import RunSettings, default_home
-from jobs.ledger import DONE, Job, LedgerError
+from datagen.errors import DatagenError
+from jobs.ledger import DONE, FINAL_STATES, Job, LedgerError
 from storage.location import StorageError
 
 HomeOption = Annotated[
@@ -204,11 +205,20 @@ def register(app: typer.Typer) -> None:
             console.print(f"serving {ledger.path}", highlight=False)
             while True:
                 jobs = ledger.runnable_jobs()
+                waiting = not jobs
                 for job in jobs:
                     console.print(f"running job {job.job_id}", highlight=False)
-                    finished = run_job(ledger, job.job_id, address=settings.ray_address, num_cpus=settings.num_workers)
+                    try:
+                        finished = run_job(
+                            ledger, job.job_id, address=settings.ray_address, num_cpus=settings.num_workers
+                        )
+                    except (DatagenError, StorageError) as exc:
+                        finished = ledger.fail_job(job.job_id, str(exc))
+                        error_console.print(f"error: job {job.job_id}: {exc}", markup=False, highlight=False)
                     console.print(f"job {finished.job_id}: {finished.state}", highlight=False)
+                    # Unfinished: another driver holds its remaining tasks; look again after a pause.
+                    waiting = waiting or finished.state not in FINAL_STATES
                 if once and not ledger.runnable_jobs():
                     break
-                if not jobs:
+                if waiting:
                     time.sleep(poll)

@@ -15,6 +15,7 @@ from rich.text import Text
 
 from datagen.cli import jobs_cmd
 from datagen.cli.common import console, user_errors
+from datagen.cli.shards import shards_app
 from datagen.config_io import config_to_toml, load_config
 from datagen.errors import DatagenError
 from datagen.threads import single_threaded_blas
@@ -30,6 +31,7 @@ objects_app = typer.Typer(help="Built-in shapes, synthetic shapes and objects fi
 app.add_typer(config_app, name="config")
 app.add_typer(objects_app, name="objects")
 jobs_cmd.register(app)
+app.add_typer(shards_app, name="shards")
 
 ConfigOption = Annotated[
     Path | None, typer.Option("--config", "-c", help="Generation config (TOML); defaults otherwise.")

@@ -60,7 +60,7 @@ class ObjectsListing:
 
 def read_objects_file(path: str | Path) -> ObjectsListing:
     """Resolve every line of an objects file; raise only when the file itself is unusable."""
-    path = Path(path)
+    path = Path(path).absolute()
     try:
         text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
