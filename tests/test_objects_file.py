@@ -156,7 +156,7 @@ def test_the_example_objects_file_resolves_to_the_shared_meshes() -> None:
     shared = (examples / ".." / ".." / "shared" / "meshes").resolve()
     if not shared.is_dir():
         pytest.skip(f"shared meshes not found at {shared}")
-    assert shared == examples.parent.parent / "shared" / "meshes"
+    assert shared == (examples.parent.parent / "shared" / "meshes").resolve()
     listing = read_objects_file(EXAMPLES / "shared-meshes.txt")
     assert listing.errors == []
     assert len(listing.objects) >= 3
