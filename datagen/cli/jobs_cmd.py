@@ -15,8 +15,8 @@ from rich.text import Text
 
 from datagen.cli.common import console, error_console, user_errors
 from datagen.engine import JobProgress, ProgressCallback
-from datagen.settings import RunSettings, default_home
 from datagen.errors import DatagenError
+from datagen.settings import RunSettings, default_home
 from jobs.ledger import DONE, FINAL_STATES, Job, LedgerError
 from storage.location import StorageError
 
