@@ -189,11 +189,7 @@ def test_every_field_is_covered_by_the_change_list() -> None:
     # refiner and sampling have one allowed value each so far: they cannot change yet
     assert top | {"refiner", "sampling"} == set(GenerationConfig.model_fields)
     nested = {
-        (key, sub)
-        for change in CHANGES
-        for key, value in change.items()
-        if isinstance(value, dict)
-        for sub in value
+        (key, sub) for change in CHANGES for key, value in change.items() if isinstance(value, dict) for sub in value
     }
     assert {sub for key, sub in nested if key == "camera"} == set(CameraConfig.model_fields)
     # count alone cannot change with the built-in source: it is tested below with a generated source
@@ -218,8 +214,7 @@ def test_hash_changes_with_view_count() -> None:
 def test_hash_ignores_key_order_and_formatting(tmp_path: Path) -> None:
     first = write(
         tmp_path / "a.toml",
-        'seed = 3\nimaging = "pixels"\nalpha = 4\n[camera]\nfx = 900.0\nwidth = 1000\n'
-        "[view_space]\nradius = 0.45\n",
+        'seed = 3\nimaging = "pixels"\nalpha = 4\n[camera]\nfx = 900.0\nwidth = 1000\n[view_space]\nradius = 0.45\n',
     )
     second = write(
         tmp_path / "b.toml",

@@ -264,9 +264,7 @@ def test_a_bad_line_does_not_stop_the_others(meshes: Path) -> None:
 
 
 def test_same_object_twice_names_both_lines(meshes: Path) -> None:
-    listing = listing_of(
-        meshes, "# objects\ntetra.obj size=0.1\n\nother.obj\ntetra.obj size=0.1 name=again\n"
-    )
+    listing = listing_of(meshes, "# objects\ntetra.obj size=0.1\n\nother.obj\ntetra.obj size=0.1 name=again\n")
     assert [spec.line for spec in listing.objects] == [2, 4]
     (error,) = listing.errors
     assert_line_error(error, meshes, 5, "same object as line 2", "2 and 5")

@@ -170,9 +170,7 @@ def test_non_finite_vertices(tmp_path: Path, bad: str) -> None:
     path = tmp_path / "nan.obj"
     path.write_text(f"v {bad} 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     message = object_error(spec_for(path))
-    assert message == (
-        f"{path.resolve()}: the mesh has NaN or infinite vertex coordinates; repair or re-export it"
-    )
+    assert message == (f"{path.resolve()}: the mesh has NaN or infinite vertex coordinates; repair or re-export it")
 
 
 def test_size_that_cannot_fit_the_image(tmp_path: Path) -> None:
