@@ -23,7 +23,7 @@ import numpy.typing as npt
 
 from datagen.camera import Pose, cone_pixel_rays, inside_image, look_at, max_fitting_radius, project
 from datagen.ground_truth import GroundTruth
-from datagen.keys import KeyGrid, points_to_packed, unpack_keys
+from datagen.keys import KeyGrid, unpack_keys
 from datagen.raycast import RayCaster
 from datagen.threads import single_threaded_blas
 from datagen.viewspace import ViewSpace
@@ -135,23 +135,30 @@ def _image_targets(
     observations, rays = [], []
     radius = float(np.sqrt(np.einsum("ij,ij->i", gt.points, gt.points).max())) if len(gt) else 0.0
     everything = np.arange(len(gt))
+    grid = KeyGrid.around(gt.points, config.voxel_size, config.grid_offset)
+    gt_cells = grid.linear_of_keys(unpack_keys(gt.keys))
     for view, pose in enumerate(poses):
-        if radius <= max_fitting_radius(config.camera, float(np.linalg.norm(pose.origin))):
+        distance_to_centre = float(np.linalg.norm(pose.origin))
+        if radius <= max_fitting_radius(config.camera, distance_to_centre):
             candidates = everything  # the sphere holding P_gt projects inside the image
         else:
             camera_points = pose.world_to_camera(gt.points)
             uv = project(config.camera, camera_points)
             candidates = np.flatnonzero(inside_image(config.camera, uv, camera_points[:, 2]))
-        offsets = gt.points[candidates] - pose.origin
-        within = np.einsum("ij,ij->i", offsets, offsets) <= config.camera.max_range**2
-        if not within.all():
+        if distance_to_centre + radius <= config.camera.max_range:
+            offsets = (gt.points if candidates is everything else gt.points[candidates]) - pose.origin
+        else:
+            offsets = gt.points[candidates] - pose.origin
+            within = np.einsum("ij,ij->i", offsets, offsets) <= config.camera.max_range**2
             candidates, offsets = candidates[within], offsets[within]
         # Rays along the unnormalised offsets: the target sits at t = 1, and the first hit anywhere
         # on the way is at t <= 1 (Embree and the float64 refinement both accept any direction length).
         hit, distance, _, hit_directions = caster.cast(pose.origin, offsets, np.inf)
         hit_points = pose.origin + hit_directions * distance[:, None]
-        hit_keys = points_to_packed(hit_points, config.voxel_size, config.grid_offset)
-        same_key = hit_keys == gt.keys[candidates[hit]]
+        # A hit may land outside the box of P_gt's representative points only when it is not in
+        # the target's key; clip so that it still gets a cell number (it compares unequal anyway).
+        hit_cells = grid.linear_of_points(hit_points, config.voxel_size, config.grid_offset, clip=True)
+        same_key = hit_cells == gt_cells[candidates[hit]]
         visible = candidates[hit[same_key]]
         # candidates are in P_gt order (sorted keys), so visible keys come out sorted and unique.
         observations.append(

@@ -85,16 +85,21 @@ class KeyGrid:
         return cls(low, high)
 
     def linear_of_points(
-        self, points: npt.NDArray[np.float64], voxel_size: float, grid_offset: npt.ArrayLike
+        self, points: npt.NDArray[np.float64], voxel_size: float, grid_offset: npt.ArrayLike, clip: bool = False
     ) -> KeyArray:
-        """Cell numbers of the keys of points, column by column (no (N, 3) temporaries)."""
+        """Cell numbers of the keys of points, column by column (no (N, 3) temporaries).
+
+        ``clip`` maps keys outside the box to its border cells (for callers that only compare)."""
         offset = np.asarray(grid_offset, dtype=np.float64)
         linear = np.zeros(points.shape[0], dtype=np.int64)
         for axis in range(3):
             column = points[:, axis] / voxel_size
             column += offset[axis]
+            index = np.floor(column).astype(np.int64) - self.low[axis]
+            if clip:
+                np.clip(index, 0, self.dims[axis] - 1, out=index)
             linear *= self.dims[axis]
-            linear += np.floor(column).astype(np.int64) - self.low[axis]
+            linear += index
         return linear
 
     def linear_of_keys(self, keys: npt.ArrayLike) -> KeyArray:
