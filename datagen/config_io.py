@@ -42,6 +42,15 @@ def load_config(path: str | Path | None = None) -> GenerationConfig:
                     f"existing view-space file (looked for {resolved})"
                 )
             view_space["source"] = str(resolved)
+    weights = data.get("poco_weights")
+    if isinstance(weights, str) and weights != "builtin":
+        resolved_weights = (path.parent / weights).resolve()
+        if not resolved_weights.is_file():
+            raise ConfigError(
+                f"{path}: poco_weights = {weights!r} is neither 'builtin' nor an existing weights file "
+                f"(looked for {resolved_weights}); train one with 'datagen poco train'"
+            )
+        data["poco_weights"] = str(resolved_weights)
     return config_from_dict(data, origin=str(path))
 
 

@@ -22,6 +22,7 @@ MAX_VIEWS = 64
 
 BUILTIN_VIEW_SPACE = "builtin"
 GENERATED_VIEW_SPACE = "generated"
+BUILTIN_POCO_WEIGHTS = "builtin"
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
@@ -99,8 +100,14 @@ class GenerationConfig(_Frozen):
     # Section 3: imaging
     imaging: Literal["targets", "pixels"] = "targets"
     # Section 4: refinement
-    refiner: Literal["none", "carve"] = "none"
+    refiner: Literal["none", "carve", "poco"] = "none"
     band: PositiveFloat = 0.01
+    poco_preset: str = "small_sv"
+    poco_weights: str = BUILTIN_POCO_WEIGHTS
+    """'builtin' (the shipped datagen/data/poco_small.pt) or the path of a weights file."""
+    poco_threshold: float = Field(0.65, gt=0.0, lt=1.0, allow_inf_nan=False)
+    """p(inside) above which a queried band key is kept (tuned on training shapes)."""
+    finetune_steps: int = Field(0, ge=0, le=1000, strict=True)
     # Section 5: filter
     alpha: int = Field(10, ge=1, le=MAX_VIEWS, strict=True)
     # Section 6: input cases
@@ -149,6 +156,8 @@ class GenerationConfig(_Frozen):
         data = self.model_dump(mode="json")
         if self.view_space.is_file:
             data["view_space"]["source"] = "sha256:" + file_sha256(Path(self.view_space.source))
+        if self.poco_weights != BUILTIN_POCO_WEIGHTS:
+            data["poco_weights"] = "sha256:" + file_sha256(Path(self.poco_weights))
         return data
 
     def config_hash(self) -> str:

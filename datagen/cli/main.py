@@ -13,7 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from datagen.cli import jobs_cmd
+from datagen.cli import jobs_cmd, poco_cmd
 from datagen.cli.common import console, user_errors
 from datagen.cli.shards import shards_app
 from datagen.config_io import config_to_toml, load_config
@@ -32,6 +32,7 @@ app.add_typer(config_app, name="config")
 app.add_typer(objects_app, name="objects")
 jobs_cmd.register(app)
 app.add_typer(shards_app, name="shards")
+app.add_typer(poco_cmd.poco_app, name="poco")
 
 ConfigOption = Annotated[
     Path | None, typer.Option("--config", "-c", help="Generation config (TOML); defaults otherwise.")

@@ -2,11 +2,36 @@
 
 from __future__ import annotations
 
+import functools
+from pathlib import Path
+from typing import Any
+
 from datagen.errors import ConfigError
 from datagen.refine.base import Refiner
 from datagen.refine.carve import CarveRefiner
 from datagen.refine.none import NoRefiner
-from schemas.config import GenerationConfig
+from schemas.config import BUILTIN_POCO_WEIGHTS, GenerationConfig
+
+
+def poco_weights_path(config: GenerationConfig) -> Path:
+    if config.poco_weights == BUILTIN_POCO_WEIGHTS:
+        from datagen.refine.poco.refiner import BUILTIN_WEIGHTS
+
+        return BUILTIN_WEIGHTS
+    return Path(config.poco_weights)
+
+
+@functools.lru_cache(maxsize=4)
+def _load_poco(path: str, preset: str, mtime_ns: int) -> tuple[Any, str]:
+    """The model and the sha256 of its file, once per process (per file version and preset)."""
+    from datagen.refine.poco.checkpoint import load_checkpoint
+    from datagen.refine.poco.refiner import weights_sha256
+
+    try:
+        model = load_checkpoint(path, preset)
+    except (RuntimeError, ValueError) as error:
+        raise ConfigError(f"{path}: cannot load POCO weights as preset {preset!r} ({error})") from None
+    return model, weights_sha256(Path(path))
 
 
 def make_refiner(config: GenerationConfig) -> Refiner:
@@ -14,4 +39,14 @@ def make_refiner(config: GenerationConfig) -> Refiner:
         return NoRefiner()
     if config.refiner == "carve":
         return CarveRefiner(config)
-    raise ConfigError(f"refiner = {config.refiner!r} is not available; use refiner = 'none' or 'carve'")
+    if config.refiner == "poco":
+        try:
+            from datagen.refine.poco.refiner import PocoRefiner
+        except ImportError as error:
+            raise ConfigError(f"refiner = 'poco' needs torch ({error}); install datagen with torch") from None
+        path = poco_weights_path(config)
+        if not path.is_file():
+            raise ConfigError(f"{path}: POCO weights file not found; set poco_weights to a weights file or 'builtin'")
+        model, sha = _load_poco(str(path.resolve()), config.poco_preset, path.stat().st_mtime_ns)
+        return PocoRefiner(config, model, sha, config.poco_threshold, config.finetune_steps)
+    raise ConfigError(f"refiner = {config.refiner!r} is not available; use 'none', 'carve' or 'poco'")
