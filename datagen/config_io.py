@@ -32,26 +32,21 @@ def load_config(path: str | Path | None = None) -> GenerationConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc}); fix the syntax at that position") from None
     view_space = data.get("view_space")
-    if isinstance(view_space, dict):
-        source = view_space.get("source")
-        if isinstance(source, str) and source not in ("builtin", "generated"):
-            resolved = (path.parent / source).resolve()
-            if not resolved.is_file():
-                raise ConfigError(
-                    f"{path}: view_space.source = {source!r} is neither 'builtin', 'generated' nor an "
-                    f"existing view-space file (looked for {resolved})"
-                )
-            view_space["source"] = str(resolved)
-    weights = data.get("poco_weights")
-    if isinstance(weights, str) and weights != "builtin":
-        resolved_weights = (path.parent / weights).resolve()
-        if not resolved_weights.is_file():
-            raise ConfigError(
-                f"{path}: poco_weights = {weights!r} is neither 'builtin' nor an existing weights file "
-                f"(looked for {resolved_weights}); train one with 'datagen poco train'"
-            )
-        data["poco_weights"] = str(resolved_weights)
+    if isinstance(view_space, dict) and view_space.get("source") not in (None, "builtin", "generated"):
+        view_space["source"] = _config_file(path, "view_space.source", view_space["source"], "'builtin', 'generated'")
+    if data.get("poco_weights") not in (None, "builtin"):
+        data["poco_weights"] = _config_file(path, "poco_weights", data["poco_weights"], "'builtin'")
     return config_from_dict(data, origin=str(path))
+
+
+def _config_file(config_path: Path, field: str, value: object, keywords: str) -> str:
+    """A file a config names, resolved against the config's folder (it enters the hash by content)."""
+    resolved = (config_path.parent / str(value)).resolve()
+    if not resolved.is_file():
+        raise ConfigError(
+            f"{config_path}: {field} = {value!r} is neither {keywords} nor an existing file (looked for {resolved})"
+        )
+    return str(resolved)
 
 
 def config_from_dict(data: dict[str, Any], origin: str = "config") -> GenerationConfig:

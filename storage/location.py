@@ -54,12 +54,7 @@ class Location:
         target = self.path(relative)
         self.fs.makedirs(posixpath.dirname(target), exist_ok=True)
         if self.is_local:
-            temporary = f"{target}.tmp-{uuid.uuid4().hex}"
-            with open(temporary, "wb") as handle:
-                handle.write(data)
-                handle.flush()
-                os.fsync(handle.fileno())
-            os.replace(temporary, target)
+            os.replace(_durable_temporary(target, data), target)
         else:
             # Object stores and the memory filesystem publish a single put whole.
             self.fs.pipe_file(target, data)
@@ -75,11 +70,7 @@ class Location:
         target = self.path(relative)
         self.fs.makedirs(posixpath.dirname(target), exist_ok=True)
         if self.is_local:
-            temporary = f"{target}.tmp-{uuid.uuid4().hex}"
-            with open(temporary, "wb") as handle:
-                handle.write(data)
-                handle.flush()
-                os.fsync(handle.fileno())
+            temporary = _durable_temporary(target, data)
             try:
                 os.link(temporary, target)
                 return True
@@ -103,6 +94,16 @@ class Location:
     def remove(self, relative: str, recursive: bool = False) -> None:
         with contextlib.suppress(FileNotFoundError):
             self.fs.rm(self.path(relative), recursive=recursive)
+
+
+def _durable_temporary(target: str, data: bytes) -> str:
+    """A fully written, fsynced file beside ``target``, to be moved or linked into place."""
+    temporary = f"{target}.tmp-{uuid.uuid4().hex}"
+    with open(temporary, "wb") as handle:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+    return temporary
 
 
 def open_location(url: str, storage_options: dict[str, Any] | None = None) -> Location:
