@@ -197,8 +197,8 @@ def _record(ledger: Ledger, job_id: str, task_id: str, attempt_id: str, ref: Any
         ledger.release(job_id, task_id, attempt_id)
         return
     except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError, ray.exceptions.RayTaskError) as exc:
-        # Retries are spent (or the task raised: a bug). Give it back once more to the ledger as
-        # failed with the reason, so the job ends and says why.
+        # Ray's retries are spent (or the task raised: a bug): record the task as failed with the
+        # reason, so the job ends and says why.
         message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         ledger.fail(job_id, task_id, attempt_id, f"worker error: {message}")
         state.failed += 1

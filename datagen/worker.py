@@ -24,7 +24,7 @@ from datagen.threads import single_threaded_blas
 from datagen.viewspace import ViewSpace, build_view_space
 from schemas.config import GenerationConfig
 from schemas.index import FailureRecord
-from schemas.jobs import TaskSpec
+from schemas.jobs import ObjectRef, TaskSpec
 from schemas.version import SCHEMA_VERSION
 from storage.location import open_location
 from storage.writer import read_commit, write_failure, write_task
@@ -98,8 +98,4 @@ def _view_space(frozen: str) -> ViewSpace:
 @functools.lru_cache(maxsize=8)
 def _prepared(object_json: str, frozen: str) -> PreparedObject:
     """Prepared objects are reused across the rotations a worker runs (same object, same config)."""
-    from schemas.jobs import ObjectRef
-
-    ref = ObjectRef.model_validate_json(object_json)
-    generator: dict[str, object] = {}
-    return prepare_object(object_spec(ref, generator), _config(frozen))
+    return prepare_object(object_spec(ObjectRef.model_validate_json(object_json)), _config(frozen))
