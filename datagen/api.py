@@ -67,14 +67,16 @@ def resume(
     settings = settings or RunSettings()
     ledger = ledger_for(settings)
     try:
-        ledger.reopen_job(job_id)
+        job = ledger.reopen_job(job_id)
+        options = storage_options if storage_options is not None else settings.storage_options(job.out)
         try:
             return run_job(
                 ledger,
                 job_id,
                 address=settings.ray_address,
                 num_cpus=settings.num_workers,
-                storage_options=storage_options,
+                storage_options=options,
+                refiner_gpus=settings.refiner_gpus,
                 progress=progress,
             )
         except (DatagenError, StorageError) as exc:

@@ -16,13 +16,15 @@ import platform
 import socket
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
 
+from datagen.errors import ConfigError
 from datagen.viewspace import build_view_space
 from datagen.worker import TaskOutcome, execute_task
 from jobs.ledger import CANCELLED, DONE, FAILED, PENDING, RUNNING, Job, Ledger
@@ -31,7 +33,7 @@ from schemas.dataset import DatasetInfo
 from schemas.index import FailureRecord
 from schemas.version import SCHEMA_VERSION
 from storage.dataset_info import init_dataset
-from storage.location import open_location
+from storage.location import StorageError, open_location, storage_failure
 from storage.reader import finalise
 from storage.writer import write_failure
 
@@ -65,7 +67,10 @@ def ensure_ray(address: str | None, num_cpus: int | None) -> None:
     if address:
         ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.ERROR)
     else:
+        # "local": always a private Ray of our own, even when `ray start` left a cluster running on
+        # this machine (joining it would need --address, and would ignore --workers).
         ray.init(
+            address="local",
             num_cpus=num_cpus,
             include_dashboard=False,
             runtime_env=env,
@@ -75,11 +80,16 @@ def ensure_ray(address: str | None, num_cpus: int | None) -> None:
 
 
 def _remote_execute(
-    task: dict[str, Any], config: dict[str, Any], out: str, attempt_id: str, storage_options: dict[str, Any] | None
+    task: dict[str, Any],
+    config: dict[str, Any],
+    out: str,
+    attempt_id: str,
+    storage_options: dict[str, Any] | None,
+    device: str,
 ) -> tuple[TaskOutcome, str]:
     import ray
 
-    outcome = execute_task(task, config, out, attempt_id, storage_options)
+    outcome = execute_task(task, config, out, attempt_id, storage_options, device)
     context = ray.get_runtime_context()
     return outcome, f"{context.get_node_id()[:12]}@{socket.gethostname()}"
 
@@ -110,31 +120,46 @@ def run_job(
     storage_options: dict[str, Any] | None = None,
     progress: ProgressCallback | None = None,
     max_in_flight: int | None = None,
+    refiner_gpus: float = 0.0,
 ) -> Job:
-    """Run every runnable task of a job to completion (or cancellation); returns the job."""
+    """Run every runnable task of a job to completion (or cancellation); returns the job.
+
+    Each task reserves one CPU, and ``refiner_gpus`` of a GPU when that is > 0 (its learned refiner
+    then runs on CUDA). Tasks are plain Ray tasks rather than a fixed pool of actors, so a node that
+    joins or leaves mid-job simply gains or loses tasks; the refiner's weights are still loaded once
+    per worker process, which Ray keeps between tasks.
+    """
     import ray
 
     job = ledger.job(job_id)
     spec = job.spec
     config = GenerationConfig.model_validate(spec["config"])
     location = open_location(job.out, storage_options)
-    init_dataset(location, dataset_info(config))
-    for number, line_error in enumerate(spec.get("line_errors", [])):
-        origin, _, message = line_error.partition(": ")
-        write_failure(
-            location,
-            FailureRecord(
-                schema_version=SCHEMA_VERSION,
-                task_id=f"line-{number:04d}",
-                object_name="",
-                origin=origin,
-                message=message,
-            ),
-        )
+    with _store_errors(job.out):
+        init_dataset(location, dataset_info(config))
+        for number, line_error in enumerate(spec.get("line_errors", [])):
+            origin, _, message = line_error.partition(": ")
+            write_failure(
+                location,
+                FailureRecord(
+                    schema_version=SCHEMA_VERSION,
+                    task_id=f"line-{number:04d}",
+                    object_name="",
+                    origin=origin,
+                    message=message,
+                ),
+            )
     ensure_ray(address, num_cpus)
+    if refiner_gpus > 0 and not ray.cluster_resources().get("GPU", 0):
+        raise ConfigError(
+            f"refiner_gpus = {refiner_gpus:g} but the Ray cluster has no GPU; drop --refiner-gpus to refine on CPU"
+        )
     owner = f"driver-{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:6]}"
     ledger.start_job(job_id, owner)
-    remote = ray.remote(num_cpus=1, max_retries=TASK_RETRIES, retry_exceptions=False)(_remote_execute)
+    remote = ray.remote(num_cpus=1, num_gpus=refiner_gpus, max_retries=TASK_RETRIES, retry_exceptions=False)(
+        _remote_execute
+    )
+    device = "cuda" if refiner_gpus > 0 else "cpu"
     capacity = max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1)))
     config_data = config.model_dump(mode="json")
     tasks = ledger.tasks(job_id)
@@ -154,7 +179,7 @@ def run_job(
         free = capacity - len(in_flight)
         if free > 0:
             for claim in ledger.claim(job_id, owner, LEASE_SECONDS, free):
-                ref = remote.remote(claim.task.spec, config_data, job.out, claim.attempt_id, storage_options)
+                ref = remote.remote(claim.task.spec, config_data, job.out, claim.attempt_id, storage_options, device)
                 in_flight[ref] = (claim.task.task_id, claim.attempt_id)
         if not in_flight:
             break
@@ -169,7 +194,8 @@ def run_job(
             last_renew = time.monotonic()
     counts = ledger.task_counts(job_id)
     if not cancelled and not counts.get(PENDING) and not counts.get(RUNNING):
-        finalise(location)
+        with _store_errors(job.out):
+            finalise(location)
         summary = {
             "tasks": len(tasks),
             "done": counts.get(DONE, 0),
@@ -186,6 +212,18 @@ def run_job(
     if progress:
         progress(state)
     return ledger.job(job_id)
+
+
+@contextmanager
+def _store_errors(url: str) -> Iterator[None]:
+    """The driver's own store operations: any failure of the store (refused credentials, an
+    unreachable endpoint once its timeout and retries are spent) becomes one `StorageError` line."""
+    try:
+        yield
+    except StorageError:
+        raise
+    except Exception as error:  # botocore, aiohttp and fsspec raise many unrelated types
+        raise storage_failure(url, error) from None
 
 
 def _record(ledger: Ledger, job_id: str, task_id: str, attempt_id: str, ref: Any, state: JobProgress) -> None:

@@ -1,14 +1,23 @@
 """`RunSettings`: where and how a job runs. Never hashed, never written into a dataset.
 
-This is the only module that reads environment variables (besides the CLI's options).
+This is the only module that reads datagen's environment variables (besides the CLI's options);
+`storage.location` reads the standard AWS ones (endpoint, region) where a store is opened.
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
+
+from storage.location import is_s3
+
+
+def _env_number(name: str, default: float) -> float:
+    value = os.environ.get(name)
+    return float(value) if value not in (None, "") else default
 
 
 def default_home() -> Path:
@@ -24,5 +33,23 @@ class RunSettings(BaseModel):
     out: str | None = None
     ray_address: str | None = Field(default_factory=lambda: os.environ.get("RAY_ADDRESS"))
     num_workers: int | None = Field(None, ge=1)
-    blas_threads: int = Field(1, ge=1)
-    """BLAS threads per worker: 1, since tall-skinny matmuls run up to 100x slower with 2 here."""
+    refiner_gpus: float = Field(0.0, ge=0.0, le=1.0)
+    """Share of a GPU each task reserves; > 0 runs the poco refiner on CUDA (CPU and GPU results can
+    differ in borderline keys, so keep one device per dataset)."""
+    storage_timeout: float = Field(default_factory=lambda: _env_number("DATAGEN_STORAGE_TIMEOUT", 20.0), gt=0.0)
+    """Seconds to connect to, or wait on, an object store per request (DATAGEN_STORAGE_TIMEOUT)."""
+    storage_retries: int = Field(default_factory=lambda: int(_env_number("DATAGEN_STORAGE_RETRIES", 4)), ge=1, le=20)
+    """Attempts per object-store request before it fails (DATAGEN_STORAGE_RETRIES)."""
+
+    def storage_options(self, url: str) -> dict[str, Any]:
+        """fsspec options for a dataset URL: request timeouts and retries for S3, so an unreachable
+        store or refused credentials fail the job after a bounded time instead of hanging."""
+        if not is_s3(url):
+            return {}
+        return {
+            "config_kwargs": {
+                "connect_timeout": self.storage_timeout,
+                "read_timeout": self.storage_timeout,
+                "retries": {"max_attempts": self.storage_retries, "mode": "standard"},
+            }
+        }

@@ -184,7 +184,7 @@ def task_metadata(config: GenerationConfig, refiner: Refiner) -> dict[str, objec
     return {
         "refiner": refiner.name,
         "weights_id": refiner.weights_id,
-        "device": "cpu",
+        "device": str(getattr(refiner, "device", "cpu")),
         "seed": config.seed,
         "config_hash": config.config_hash(),
         "schema_version": SCHEMA_VERSION,

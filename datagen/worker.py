@@ -20,7 +20,7 @@ from datagen.payload import task_payload
 from datagen.planning import object_spec
 from datagen.refine import make_refiner
 from datagen.task import run_task
-from datagen.threads import single_threaded_blas
+from datagen.threads import fixed_torch_threads, single_threaded_blas
 from datagen.viewspace import ViewSpace, build_view_space
 from schemas.config import GenerationConfig
 from schemas.index import FailureRecord
@@ -49,8 +49,12 @@ def execute_task(
     out: str,
     attempt_id: str,
     storage_options: dict[str, Any] | None = None,
+    device: str = "cpu",
 ) -> TaskOutcome:
-    """Run one task end to end and commit its shard under a unique execution id."""
+    """Run one task end to end and commit its shard under a unique execution id.
+
+    ``device`` is where a learned refiner runs ('cuda' when the engine reserved a GPU share).
+    """
     started = time.perf_counter()
     spec = TaskSpec.model_validate(task)
     generation = _config(_freeze(config))
@@ -60,11 +64,10 @@ def execute_task(
         return TaskOutcome(spec.task_id, True, committed.num_samples, committed.attempt_id, reused=True)
     execution = f"{attempt_id}-{uuid.uuid4().hex[:8]}"
     try:
-        with single_threaded_blas():
+        refiner = make_refiner(generation, device)  # first: it may import torch, which the bound below fixes
+        with single_threaded_blas(), fixed_torch_threads():
             prepared = _prepared(spec.object.model_dump_json(), _freeze(config))
-            result = run_task(
-                prepared, spec.rotation, generation, _view_space(_freeze(config)), make_refiner(generation)
-            )
+            result = run_task(prepared, spec.rotation, generation, _view_space(_freeze(config)), refiner)
     except DatagenError as exc:
         write_failure(
             location,

@@ -100,7 +100,7 @@ class GenerationConfig(_Frozen):
     # Section 3: imaging
     imaging: Literal["targets", "pixels"] = "targets"
     # Section 4: refinement
-    refiner: Literal["none", "carve", "poco"] = "none"
+    refiner: Literal["none", "carve", "poisson", "poco"] = "poco"
     band: PositiveFloat = 0.01
     poco_preset: str = "small_sv"
     poco_weights: str = BUILTIN_POCO_WEIGHTS
@@ -108,6 +108,8 @@ class GenerationConfig(_Frozen):
     poco_threshold: float = Field(0.65, gt=0.0, lt=1.0, allow_inf_nan=False)
     """p(inside) above which a queried band key is kept (tuned on training shapes)."""
     finetune_steps: int = Field(0, ge=0, le=1000, strict=True)
+    poisson_depth: int = Field(8, ge=5, le=12, strict=True)
+    """Octree depth of the ``poisson`` refiner (2**depth cells across the observed cloud's box)."""
     # Section 5: filter
     alpha: int = Field(10, ge=1, le=MAX_VIEWS, strict=True)
     # Section 6: input cases

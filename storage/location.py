@@ -106,12 +106,63 @@ def _durable_temporary(target: str, data: bytes) -> str:
     return temporary
 
 
+S3_SCHEMES = ("s3://", "s3a://")
+
+
+def is_s3(url: str) -> bool:
+    return url.startswith(S3_SCHEMES)
+
+
+def environment_options(url: str) -> dict[str, Any]:
+    """Endpoint and region of an S3 URL from this process's standard AWS variables.
+
+    Read where the store is opened (driver, each worker, a laptop reading the dataset), never passed
+    between processes: a worker in a cluster reaches MinIO at its own address, and credentials stay
+    with botocore's usual chain (AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY, profiles), out of every
+    log, ledger row and ``dataset.json``.
+    """
+    if not is_s3(url):
+        return {}
+    options: dict[str, Any] = {}
+    endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL")
+    if endpoint:
+        options["endpoint_url"] = endpoint
+    region = os.environ.get("AWS_REGION") or os.environ.get("AWS_DEFAULT_REGION")
+    if region:
+        options["client_kwargs"] = {"region_name": region}
+    return options
+
+
+def storage_failure(url: str, error: BaseException) -> StorageError:
+    """One line for a store that cannot be reached or refuses us, naming what to check."""
+    text = str(error).strip().splitlines()
+    detail = f"{type(error).__name__}: {text[0] if text else 'no message'}"
+    if is_s3(url):
+        fix = "check the bucket, AWS_ENDPOINT_URL and the credentials (AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY)"
+    else:
+        fix = "check the path and its permissions"
+    return StorageError(f"{url}: cannot use the dataset store ({detail}); {fix}")
+
+
 def open_location(url: str, storage_options: dict[str, Any] | None = None) -> Location:
-    """The filesystem and root path for a dataset URL (a plain path means the local disk)."""
+    """The filesystem and root path for a dataset URL (a plain path means the local disk).
+
+    For ``s3://`` the endpoint and region come from the environment (`environment_options`) unless
+    ``storage_options`` gives them.
+    """
+    storage_options = {**environment_options(url), **(storage_options or {})}
+    if is_s3(url):
+        # Other processes write the store (workers, another driver, a resumed run): a listing cached
+        # for the life of the (process-wide, shared) s3fs instance would hide their commits.
+        storage_options.setdefault("use_listings_cache", False)
     try:
-        fs, root = fsspec.core.url_to_fs(url, **(storage_options or {}))
-    except (ImportError, ValueError) as exc:
+        fs, root = fsspec.core.url_to_fs(url, **storage_options)
+    except ImportError as exc:
+        if is_s3(url):
+            raise StorageError(f"{url}: S3 needs s3fs; install it with: pip install 'datagen[s3]'") from None
+        raise StorageError(f"{url}: unsupported dataset URL ({exc}); use a local path or an fsspec URL") from None
+    except ValueError as exc:
         raise StorageError(f"{url}: unsupported dataset URL ({exc}); use a local path or an fsspec URL") from None
     if isinstance(fs, LocalFileSystem):
         root = os.path.abspath(root)
-    return Location(fs=fs, root=str(root).rstrip("/") or "/", url=url, storage_options=dict(storage_options or {}))
+    return Location(fs=fs, root=str(root).rstrip("/") or "/", url=url, storage_options=storage_options)

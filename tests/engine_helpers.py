@@ -45,7 +45,12 @@ T = TypeVar("T")
 
 
 def write_config(path: Path, rotations: int, **fields: Any) -> Path:
-    """A generation config TOML: defaults except ``rotations`` (and any top-level scalar fields)."""
+    """A generation config TOML: defaults except ``rotations``, ``refiner`` and any top-level scalar fields.
+
+    The refiner is ``none`` unless given: engine behaviour does not depend on it, and the default
+    (``poco``) costs ~20 s per task on CPU; tests of poco through the engine pass it explicitly.
+    """
+    fields = {"refiner": "none", **fields}
     lines = [f"rotations = {rotations}"]
     for key, value in fields.items():
         lines.append(f"{key} = {value!r}" if not isinstance(value, str) else f'{key} = "{value}"')

@@ -35,7 +35,7 @@ CREATED = "2026-01-01T00:00:00"
 
 @functools.cache
 def config() -> GenerationConfig:
-    return GenerationConfig()
+    return GenerationConfig(refiner="none")
 
 
 @functools.cache

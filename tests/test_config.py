@@ -80,7 +80,9 @@ def test_load_config_none_gives_defaults() -> None:
 def test_run_settings_are_not_part_of_the_config() -> None:
     assert "out" not in GenerationConfig.model_fields
     settings = RunSettings(out="s3://bucket/x", num_workers=3)
-    assert settings.blas_threads == 1
+    assert settings.refiner_gpus == 0.0
+    with pytest.raises(ValueError):
+        RunSettings(refiner_gpus=1.5)
     with pytest.raises(ValueError):
         RunSettings(num_workers=0)
 
@@ -172,6 +174,7 @@ CHANGES = [
     {"poco_preset": "tiny_sv"},
     {"poco_threshold": 0.6},
     {"finetune_steps": 10},
+    {"poisson_depth": 9},
     {"alpha": 11},
     {"empty_labels": "drop"},
     {"solver_time_limit": 20.0},

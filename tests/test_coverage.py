@@ -189,7 +189,7 @@ def capsule_task(tmp_path: Path, config: GenerationConfig) -> TaskResult:
 @pytest.fixture(scope="module")
 def capsule_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, TaskResult]:
     folder = tmp_path_factory.mktemp("capsule")
-    base = GenerationConfig()
+    base = GenerationConfig(refiner="none")
     return {
         "keep": capsule_task(folder, base),
         "drop": capsule_task(folder, base.model_copy(update={"empty_labels": "drop"})),
@@ -198,7 +198,7 @@ def capsule_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, TaskResu
 
 
 def test_relabel_with_the_task_alpha_reproduces_run_task(capsule_runs: dict[str, TaskResult]) -> None:
-    config = GenerationConfig()
+    config = GenerationConfig(refiner="none")
     keep = capsule_runs["keep"]
     assert keep.failures == () and keep.dropped_empty == 0
     assert [s.case for s in keep.samples] == list(keep.cases)
@@ -240,7 +240,7 @@ def test_empty_labels_drop_removes_exactly_the_empty_samples(capsule_runs: dict[
 def test_relabel_for_another_alpha_matches_a_fresh_run(capsule_runs: dict[str, TaskResult]) -> None:
     keep, fresh = capsule_runs["keep"], capsule_runs["alpha5"]
     assert fresh.cases == keep.cases  # cases come from the visibility sets, not from alpha
-    coverage, labels, failures = relabel(keep.sets, keep.cases, GenerationConfig(alpha=5))
+    coverage, labels, failures = relabel(keep.sets, keep.cases, GenerationConfig(alpha=5, refiner="none"))
     assert failures == [] and coverage.alpha == 5
     assert {s.case: s.label for s in fresh.samples} == {c: r.label for c, r in labels.items()}
     assert all(s.full_size == len(coverage) for s in fresh.samples)
@@ -249,7 +249,7 @@ def test_relabel_for_another_alpha_matches_a_fresh_run(capsule_runs: dict[str, T
 
 def test_alpha_1_labels_complete_every_capsule_case(capsule_runs: dict[str, TaskResult]) -> None:
     keep = capsule_runs["keep"]
-    coverage, labels, failures = relabel(keep.sets, keep.cases, GenerationConfig(alpha=1))
+    coverage, labels, failures = relabel(keep.sets, keep.cases, GenerationConfig(alpha=1, refiner="none"))
     assert failures == []
     seen = reduce(np.union1d, keep.sets.refined)
     assert np.array_equal(coverage.keys, seen)

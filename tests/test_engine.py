@@ -36,6 +36,7 @@ from datagen import api
 from datagen.cli import common
 from datagen.cli.main import app
 from datagen.config_io import load_config
+from datagen.errors import ConfigError
 from datagen.objects.objects_file import read_objects_file
 from datagen.objects.prepare import prepare_object
 from datagen.refine import make_refiner
@@ -246,3 +247,40 @@ def test_bad_input_cli_names_the_missing_file_by_line(bad_input_run) -> None:
 def test_bad_input_cli_names_the_corrupt_mesh_by_line(bad_input_run) -> None:
     objects, line_of, result, _, _ = bad_input_run
     assert f"{objects}:{line_of['bad']}" in result.output, result.output
+
+
+@pytest.mark.slow
+def test_poco_refiner_one_and_two_worker_cpus_give_identical_samples(inputs: Path, tmp_path: Path) -> None:
+    """The default refiner (poco, shipped weights) through the engine: 2 tasks on the module's 2-CPU
+    Ray, then the same job by `datagen submit --workers 1`; every array and index row identical."""
+    config = write_config(tmp_path / "poco.toml", rotations=2, refiner="poco")
+    objects = write_objects(tmp_path / "one.txt", builtin_lines(("capsule",)))
+    job2 = api.submit(objects, config, settings_for(tmp_path / "home2"))
+    assert job2.state == DONE, job2.summary
+    home1, out1 = tmp_path / "home1", tmp_path / "out1"
+    args = ["submit", "--objects", str(objects), "--config", str(config), "--workers", "1"]
+    args += ["--home", str(home1), "--out", str(out1)]
+    with datagen_processes() as start:
+        process = start(args, tmp_path / "submit1.log")
+        assert process.wait(timeout=400) == 0, process.output()
+    job1 = only_job(home1)
+    assert job1 is not None and job1.state == DONE
+    assert validate(str(out1), full=True) == []
+    assert open_dataset(str(out1)).info.config.refiner == "poco"
+    compared = assert_same_samples(str(out1), job2.out)
+    assert compared == summarize(job2.out).samples > 0
+    # poco added keys beyond the observation in at least one sample
+    dataset = open_dataset(job2.out)
+    assert any(len(dataset.keys(i, "points")) > len(dataset.keys(i, "observed")) for i in range(len(dataset)))
+
+
+def test_refiner_gpus_without_a_gpu_is_one_clear_error(inputs: Path, tmp_path: Path) -> None:
+    import ray
+
+    if ray.cluster_resources().get("GPU", 0):
+        pytest.skip("this machine's Ray has a GPU")
+    settings = RunSettings(home=tmp_path / "home", num_workers=RAY_CPUS, ray_address=None, refiner_gpus=0.5)
+    with pytest.raises(ConfigError, match="no GPU; drop --refiner-gpus"):
+        api.submit(inputs / "builtins.txt", inputs / "one.toml", settings)
+    job = only_job(tmp_path / "home")
+    assert job is not None and job.state == FAILED and "no GPU" in job.summary["error"]

@@ -190,7 +190,7 @@ def test_bad_arguments_and_missing_datasets_are_storage_errors(small: Built, tmp
 
 
 def test_object_names_containing_cloud_are_refused_or_loadable(tmp_path: Path) -> None:
-    config = GenerationConfig(rotations=1)
+    config = GenerationConfig(rotations=1, refiner="none")
     url = str(tmp_path / "named")
     built = build_dataset(url, ["capsule"], config, rename={"capsule": "cloud_capsule"})
     out = tmp_path / "air"
@@ -203,7 +203,7 @@ def test_object_names_containing_cloud_are_refused_or_loadable(tmp_path: Path) -
 
 
 def test_two_objects_of_one_name_lose_no_samples(tmp_path: Path) -> None:
-    config = GenerationConfig(rotations=1)
+    config = GenerationConfig(rotations=1, refiner="none")
     url = str(tmp_path / "two_jobs")
     first = build_dataset(url, ["capsule"], config, rename={"capsule": "thing"}, finalise_index=False)
     second = build_dataset(url, ["l_bracket"], config, rename={"l_bracket": "thing"})

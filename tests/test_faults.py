@@ -328,7 +328,7 @@ def test_serve_fails_a_job_that_cannot_start_and_goes_on(no_local_ray, tmp_path:
     from storage import init_dataset
 
     out = tmp_path / "taken"
-    init_dataset(open_location(str(out)), dataset_info(GenerationConfig(rotations=3)))
+    init_dataset(open_location(str(out)), dataset_info(GenerationConfig(rotations=3, refiner="none")))
     write_config(tmp_path / "one.toml", rotations=1)
     write_objects(tmp_path / "one.txt", builtin_lines(["capsule"]))
     home = tmp_path / "home"

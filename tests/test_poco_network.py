@@ -239,8 +239,9 @@ def test_checkpoint_round_trip(tmp_path: Path, official: PocoModel) -> None:
 
 @pytest.mark.parametrize(("latent", "k", "heads"), [(32, 64, 64), (16, 32, 8), (16, 16, 4)])
 def test_fast_decoder_matches_reference(latent: int, k: int, heads: int) -> None:
-    torch.manual_seed(0)  # module init only; the data below uses its own generator
-    decoder = InterpAttentionKHeadsNet(latent, 2, k=k, heads=heads)
+    with torch.random.fork_rng(devices=[]):  # module init only; the data below uses its own generator
+        torch.manual_seed(0)
+        decoder = InterpAttentionKHeadsNet(latent, 2, k=k, heads=heads)
     randomise_(decoder, 1)
     g = torch.Generator().manual_seed(2)
     batch, n, m = 2, 400, 257
@@ -300,11 +301,15 @@ def permute_neighbours(tables: dict[str, torch.Tensor], seed: int) -> dict[str, 
 
 @pytest.mark.parametrize("training", [False, True])
 def test_neighbour_order_does_not_matter(training: bool) -> None:
-    model = PocoModel("tiny")
+    # float64, so that the sums over reordered neighbours agree to rounding, not to float32 luck
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = PocoModel("tiny")
     randomise_(model, 6)
+    model = model.double()
     model.train(training)
-    pts = sphere_points(800, 7, batch=2)
-    queries = box_queries(400, 8, batch=2)
+    pts = sphere_points(800, 7, batch=2).double()
+    queries = box_queries(400, 8, batch=2).double()
     tables = model.tables(pts, 9, queries=queries)
     shuffled = permute_neighbours(tables, 10)
     assert not torch.equal(shuffled["ids00"], tables["ids00"])
@@ -312,7 +317,7 @@ def test_neighbour_order_does_not_matter(training: bool) -> None:
     first = copy.deepcopy(model)  # train mode updates norm_radius: run both from the same state
     a = first(pts, model.features(pts), tables, queries, tables["proj_indices"])
     b = model(pts, model.features(pts), shuffled, queries, shuffled["proj_indices"])
-    assert (a - b).abs().max().item() <= 1e-5 * max(1.0, a.abs().max().item())
+    assert (a - b).abs().max().item() <= 1e-10 * max(1.0, a.abs().max().item())
 
 
 # --------------------------------------------------------------------------------------------------
@@ -489,8 +494,9 @@ def test_direction_features() -> None:
 
 def test_fkaconv_matches_conv2d_layout() -> None:
     """The channels-last slot projection equals the release's (B, Cin, M, S) matmul + Conv2d form."""
-    torch.manual_seed(1)
-    conv = FKAConv(5, 7)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(1)
+        conv = FKAConv(5, 7)
     randomise_(conv, 2)
     conv.eval()
     g = torch.Generator().manual_seed(3)

@@ -19,6 +19,7 @@ torch = pytest.importorskip("torch")
 
 from typer.testing import CliRunner  # noqa: E402
 
+from datagen.errors import ConfigError  # noqa: E402
 from datagen.imaging import Observation  # noqa: E402
 from datagen.objects.spec import BUILTIN_PREFIX  # noqa: E402
 from datagen.refine.base import RefineRequest, band_keys  # noqa: E402
@@ -98,6 +99,26 @@ def test_resume_continues_from_saved_step(pool_dir: Path, tmp_path: Path) -> Non
     assert any("resumed at step 3" in line for line in lines)
     assert second["step"] == 5 and len(second["losses"]) == 2
     assert torch.load(out / "last.pt", weights_only=True)["step"] == 5
+    # Without --resume an existing run is never overwritten.
+    with pytest.raises(ConfigError, match="already holds a training run"):
+        T.train(options(out, steps=7), log=lambda line: None)
+    assert torch.load(out / "last.pt", weights_only=True)["step"] == 5
+
+
+def test_init_starts_from_weights_with_a_new_optimiser(pool_dir: Path, tmp_path: Path) -> None:
+    first, second = tmp_path / "first", tmp_path / "second"
+    for folder in (first, second):
+        folder.mkdir()
+        (folder / "pool.npz").write_bytes((pool_dir / "pool.npz").read_bytes())
+    T.train(options(first, steps=2, checkpoint_every=2), log=lambda line: None)
+    weights = tmp_path / "w.pt"
+    T.export_weights(first / "last.pt", weights)
+    lines: list[str] = []
+    result = T.train(options(second, steps=4, checkpoint_every=4, init=weights), log=lines.append)
+    assert any("initialised from" in line and "step 2" in line for line in lines)
+    assert result["step"] == 4 and len(result["losses"]) == 2
+    with pytest.raises(ConfigError, match="not found"):
+        T.train(options(tmp_path / "third", steps=4, init=tmp_path / "absent.pt"), log=lambda line: None)
 
 
 @pytest.fixture(scope="module")
@@ -106,7 +127,7 @@ def request_and_config():
     from datagen.scanning import scan_task
     from datagen.viewspace import build_view_space
 
-    config = GenerationConfig()
+    config = GenerationConfig(refiner="poco")
     spec = T.sized_spec("capsule", BUILTIN_PREFIX + "capsule", None, 0.08)
     prepared = prepare_object(spec, config)
     imaging = scan_task(prepared, 1, config, build_view_space(config.view_space))
@@ -116,8 +137,9 @@ def request_and_config():
 
 def test_refiner_contract_and_determinism(request_and_config) -> None:
     request, config = request_and_config
-    torch.manual_seed(0)
-    model = PocoModel("tiny_sv").eval()
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = PocoModel("tiny_sv").eval()
     refiner = PocoRefiner(config, model, "test", 0.5)
     _queries, prob = refiner.probabilities(request)
     refiner.threshold = float(np.median(prob))  # random weights: cut at the median so R is non-trivial
@@ -138,8 +160,9 @@ def test_refiner_contract_and_determinism(request_and_config) -> None:
 
 def test_refiner_finetune_runs(request_and_config) -> None:
     request, config = request_and_config
-    torch.manual_seed(0)
-    model = PocoModel("tiny_sv").eval()
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = PocoModel("tiny_sv").eval()
     before = {k: v.clone() for k, v in model.state_dict().items()}
     refiner = PocoRefiner(config, model, "test", 0.5, finetune_steps=1)
     a = refiner.refine([request])[0]
@@ -168,17 +191,24 @@ def test_eval_command_prints_table(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setattr(common.console, "_width", 400)  # no wrapped cells
     from datagen.refine.poco.checkpoint import save_checkpoint
 
-    torch.manual_seed(0)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(0)
+        model = PocoModel("tiny_sv")
     weights = tmp_path / "tiny.pt"
-    save_checkpoint(PocoModel("tiny_sv"), weights)
+    save_checkpoint(model, weights)
     objects = tmp_path / "objects.txt"
     objects.write_text("builtin:capsule size=0.06\n")
-    result = CliRunner().invoke(
-        poco_app, ["eval", "--objects", str(objects), "--weights", str(weights), "--views", "0"]
-    )
+    args = ["eval", "--objects", str(objects), "--weights", str(weights), "--views", "0"]
+    result = CliRunner().invoke(poco_app, args)
     assert result.exit_code == 0, result.output
-    for word in ("capsule", "poco", "carve", "oracle", "mean", "precision", "hidden"):
+    for word in ("capsule", "poco", "carve", "oracle", "mean", "prec.", "hidden"):
         assert word in result.output
+    assert "poisson" not in result.output
+    pytest.importorskip("open3d")
+    with_poisson = CliRunner().invoke(poco_app, [*args, "--poisson"])
+    assert with_poisson.exit_code == 0, with_poisson.output
+    rows = [line for line in with_poisson.output.splitlines() if "poisson" in line]
+    assert len(rows) == 2  # the capsule's row and the mean row
 
 
 def test_registry_loads_shipped_weights_once() -> None:

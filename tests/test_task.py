@@ -50,7 +50,7 @@ def run(spec: ObjectSpec, config: GenerationConfig) -> TaskResult:
 
 @pytest.fixture(scope="module", params=MODES)
 def task(request, capsule_spec: ObjectSpec) -> tuple[GenerationConfig, TaskResult]:
-    config = GenerationConfig(imaging=request.param)
+    config = GenerationConfig(imaging=request.param, refiner="none")
     return config, run(capsule_spec, config)
 
 
@@ -249,7 +249,7 @@ def test_relabel_for_another_alpha_covers_the_new_u(task, alpha: int) -> None:
 
 def test_empty_labels_drop(capsule_spec: ObjectSpec) -> None:
     # alpha = 32 leaves in P_full only keys that every view saw, so every case covers U: all empty.
-    config = GenerationConfig(alpha=32, empty_labels="drop")
+    config = GenerationConfig(alpha=32, empty_labels="drop", refiner="none")
     result = run(capsule_spec, config)
     p_full = full_keys(result.sets.refined, 32)
     cover = coverage_sets(result.sets.refined, p_full)
@@ -307,7 +307,7 @@ def test_cases_per_task_on_real_meshes(tmp_path: Path, stem: str, mode: str) -> 
     if stem not in paths:
         pytest.skip(f"{stem} not among the shared meshes")
     spec = read_spec(tmp_path, f'"{paths[stem]}" size=0.15')
-    config = GenerationConfig(imaging=mode)
+    config = GenerationConfig(imaging=mode, refiner="none")
     result = run(spec, config)
     sizes = Counter(c.bit_count() for c in result.cases)
     per_size = " ".join(f"{m}:{sizes[m]}" for m in sorted(sizes))

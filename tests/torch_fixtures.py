@@ -199,10 +199,10 @@ def cached_dataset(kind: str, root: Path) -> Built:
     if kind not in _CACHE:
         path = root / kind
         if kind == "small":
-            config = GenerationConfig(rotations=2)
+            config = GenerationConfig(rotations=2, refiner="none")
             built = build_dataset(str(path), SMALL_OBJECTS, config, refiner=ShiftRefiner())
         elif kind == "training":
-            config = GenerationConfig(rotations=4)
+            config = GenerationConfig(rotations=4, refiner="none")
             built = build_dataset(str(path), TRAINING_OBJECTS, config, processes=2)
         else:
             raise KeyError(kind)

@@ -30,8 +30,20 @@ AddressOption = Annotated[
 WorkersOption = Annotated[int | None, typer.Option("--workers", min=1, help="Local Ray worker CPUs (default: all).")]
 
 
+GpusOption = Annotated[
+    float,
+    typer.Option(
+        "--refiner-gpus", min=0.0, max=1.0, help="GPU share per task; > 0 runs the poco refiner on CUDA (default 0)."
+    ),
+]
+
+
 def _settings(
-    home: Path | None, out: str | None = None, address: str | None = None, workers: int | None = None
+    home: Path | None,
+    out: str | None = None,
+    address: str | None = None,
+    workers: int | None = None,
+    refiner_gpus: float = 0.0,
 ) -> RunSettings:
     base = RunSettings()
     return RunSettings(
@@ -39,6 +51,7 @@ def _settings(
         out=out,
         ray_address=address or base.ray_address,
         num_workers=workers,
+        refiner_gpus=refiner_gpus,
     )
 
 
@@ -99,13 +112,14 @@ def register(app: typer.Typer) -> None:
         address: AddressOption = None,
         detach: Annotated[bool, typer.Option("--detach", help="Only enqueue for a running 'datagen serve'.")] = False,
         workers: WorkersOption = None,
+        refiner_gpus: GpusOption = 0.0,
         home: HomeOption = None,
     ) -> None:
         """Create a dataset job and run it now with a live progress display (or enqueue it)."""
         from datagen import api
 
         with _job_errors():
-            settings = _settings(home, out, address, workers)
+            settings = _settings(home, out, address, workers, refiner_gpus)
             job = api.enqueue(objects, config, settings)
             console.print(f"job {job.job_id}: {len(job.spec['tasks'])} tasks -> {job.out}", highlight=False)
             if detach:
@@ -122,13 +136,14 @@ def register(app: typer.Typer) -> None:
         job_id: Annotated[str, typer.Argument(help="Job id (see 'datagen status').")],
         address: AddressOption = None,
         workers: WorkersOption = None,
+        refiner_gpus: GpusOption = 0.0,
         home: HomeOption = None,
     ) -> None:
         """Run what is not done of a job again; committed tasks are kept, never recomputed."""
         from datagen import api
 
         with _job_errors():
-            settings = _settings(home, None, address, workers)
+            settings = _settings(home, None, address, workers, refiner_gpus)
             with _progress_display("tasks") as update:
                 job = api.resume(job_id, settings, progress=update)
             _report(job)
@@ -191,6 +206,7 @@ def register(app: typer.Typer) -> None:
     def serve(
         address: AddressOption = None,
         workers: WorkersOption = None,
+        refiner_gpus: GpusOption = 0.0,
         home: HomeOption = None,
         poll: Annotated[float, typer.Option(help="Seconds between looks at the queue.")] = 2.0,
         once: Annotated[bool, typer.Option("--once", help="Exit when the queue is empty.")] = False,
@@ -200,7 +216,7 @@ def register(app: typer.Typer) -> None:
         from datagen.engine import run_job
 
         with _job_errors():
-            settings = _settings(home, None, address, workers)
+            settings = _settings(home, None, address, workers, refiner_gpus)
             ledger = ledger_for(settings)
             console.print(f"serving {ledger.path}", highlight=False)
             while True:
@@ -210,7 +226,12 @@ def register(app: typer.Typer) -> None:
                     console.print(f"running job {job.job_id}", highlight=False)
                     try:
                         finished = run_job(
-                            ledger, job.job_id, address=settings.ray_address, num_cpus=settings.num_workers
+                            ledger,
+                            job.job_id,
+                            address=settings.ray_address,
+                            num_cpus=settings.num_workers,
+                            refiner_gpus=settings.refiner_gpus,
+                            storage_options=settings.storage_options(job.out),
                         )
                     except (DatagenError, StorageError) as exc:
                         finished = ledger.fail_job(job.job_id, str(exc))

@@ -27,6 +27,9 @@ def poco_train(
     preset: Annotated[str, typer.Option(help="Network preset (small_sv, tiny_sv, official, ...).")] = "small_sv",
     seed: Annotated[int, typer.Option(help="Seed of shapes, samples, init and batches.")] = 0,
     resume: Annotated[bool, typer.Option("--resume", help="Continue from OUT/last.pt.")] = False,
+    init: Annotated[
+        Path | None, typer.Option(help="Start from these weights (e.g. the shipped ones), new optimiser.")
+    ] = None,
     batch: Annotated[int, typer.Option(help="Samples per step.")] = 4,
     lr: Annotated[float, typer.Option(help="Adam learning rate (constant).")] = 1e-3,
     tasks: Annotated[int, typer.Option(help="Scanned (shape, size, rotation) tasks in the sample pool.")] = 160,
@@ -53,6 +56,7 @@ def poco_train(
             threads=threads,
             checkpoint_every=checkpoint_every,
             resume=resume,
+            init=init,
             max_seconds=None if max_minutes is None else max_minutes * 60.0,
         )
         result = train(options, log=lambda line: console.print(line, markup=False, highlight=False))
@@ -82,6 +86,7 @@ def poco_eval(
     preset: Annotated[str | None, typer.Option(help="Preset (default: the one saved with the weights).")] = None,
     config: Annotated[Path | None, typer.Option("--config", "-c", help="Generation config (TOML).")] = None,
     threads: Annotated[int, typer.Option(help="torch threads.")] = 1,
+    poisson: Annotated[bool, typer.Option(help="Also score the poisson refiner (needs Open3D).")] = False,
 ) -> None:
     """Precision, recall, IoU and hidden-key recall of poco, carve and an oracle on single views."""
     import torch
@@ -93,7 +98,7 @@ def poco_eval(
     from datagen.refine.base import Refiner
     from datagen.refine.carve import CarveRefiner
     from datagen.refine.poco.checkpoint import load_checkpoint
-    from datagen.refine.poco.evaluate import METHODS, evaluate_object, mean_metrics
+    from datagen.refine.poco.evaluate import evaluate_object, mean_metrics
     from datagen.refine.poco.refiner import BUILTIN_WEIGHTS, PocoRefiner, weights_sha256
 
     chosen_views = _parse_views(views)
@@ -109,6 +114,10 @@ def poco_eval(
             "poco": PocoRefiner(resolved, model, weights_sha256(path), cut, resolved.finetune_steps),
             "carve": CarveRefiner(resolved),
         }
+        if poisson:
+            from datagen.refine.poisson import PoissonRefiner
+
+            refiners["poisson"] = PoissonRefiner(resolved)
         listing = read_objects_file(objects)
         results = []
         for entry in listing.entries:
@@ -122,14 +131,16 @@ def poco_eval(
         table = Table(
             "object",
             "method",
-            "precision",
+            "prec.",
             "recall",
-            "IoU occ",
+            "IoU",
             "mIoU",
-            "hidden rec.",
-            "band/view",
+            "hidden",
+            "band",
             "s/view",
-            title=f"refiners on single views ({model.preset.name}, threshold {cut:g}, {path.name})",
+            title=f"single views: {model.preset.name}, threshold {cut:g}, {path.name}",
+            caption="IoU: occupied class; mIoU: mean of both classes; hidden: recall of hidden P_gt keys; "
+            "band: unknown band keys per view",
         )
 
         def add(name: str, method: str, row: dict[str, float]) -> None:
@@ -146,12 +157,13 @@ def poco_eval(
             )
 
         evaluated = [r for r in results if not r.skipped]
+        methods = (*refiners, "oracle")
         for result in evaluated:
-            for method in METHODS:
-                add(result.name, method, result.counts[method].metrics())
+            for method in methods:
+                add(result.name[:14], method, result.counts[method].metrics())
             table.add_section()
         if evaluated:
-            for method in METHODS:
+            for method in methods:
                 add("mean", method, mean_metrics(evaluated, method))
         console.print(table)
 

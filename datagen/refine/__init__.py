@@ -1,6 +1,7 @@
 """Refiners (PIPELINE.md section 4): R(O) = the band keys a refiner predicts occupied.
 
-``none`` ships now; ``poco``, ``poisson`` and ``carve`` plug in behind the same interface.
+``none`` (the raw observation), ``carve`` (space carving), ``poisson`` (screened Poisson surface,
+needs Open3D) and ``poco`` (the learned network) share one interface; `make_refiner` picks one.
 """
 
 from datagen.refine.base import Refiner, RefineRequest, band_keys, refined_keys

@@ -9,7 +9,8 @@ whose centre is inside the mesh. For a refiner's R(O) (a subset of D):
 - hidden recall: among P_gt keys in D (hidden surface keys), the fraction in R(O) (so in P(O)).
 
 Counts are summed over an object's views (micro-average); the mean row averages the objects.
-Methods: ``poco`` (given refiner), ``carve`` and ``oracle`` (R = T), all on the same views.
+Methods: the given refiners (``poco``, ``carve``, optionally ``poisson``) and ``oracle`` (R = T), all
+on the same views.
 """
 
 from __future__ import annotations
@@ -30,8 +31,6 @@ from datagen.scanning import scan_task
 from datagen.threads import single_threaded_blas
 from datagen.viewspace import build_view_space
 from schemas.config import GenerationConfig
-
-METHODS = ("poco", "carve", "oracle")
 
 
 @dataclass

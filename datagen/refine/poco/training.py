@@ -40,6 +40,7 @@ import torch
 import trimesh
 from torch import Tensor
 
+from datagen.errors import ConfigError
 from datagen.imaging import Observation
 from datagen.keys import key_centres, unpack_keys
 from datagen.objects import builtins
@@ -329,6 +330,8 @@ class TrainOptions:
     checkpoint_every: int = 50
     threads: int = 1
     resume: bool = False
+    init: Path | None = None
+    """Weights file or checkpoint to start from (a fresh optimiser; steps continue from its step)."""
     max_seconds: float | None = None
     device: str | None = None
 
@@ -482,6 +485,13 @@ def export_weights(checkpoint: Path, out: Path, threshold: float | None = None, 
 
 def train(options: TrainOptions, log: Callable[[str], None] = print) -> dict[str, Any]:
     """Train (or resume) a POCO model; writes ``last.pt``, ``best.pt`` and ``log.jsonl`` under ``out``."""
+    if (options.out / "last.pt").exists() and not (options.resume and options.init is None):
+        raise ConfigError(
+            f"{options.out} already holds a training run (last.pt); pass --resume (without --init) to continue "
+            "it, or choose another --out"
+        )
+    if options.init is not None and not options.init.is_file():
+        raise ConfigError(f"{options.init}: --init weights file not found")
     torch.set_num_threads(options.threads)
     options.out.mkdir(parents=True, exist_ok=True)
     device = torch.device(options.device or ("cuda" if torch.cuda.is_available() else "cpu"))
@@ -492,13 +502,20 @@ def train(options: TrainOptions, log: Callable[[str], None] = print) -> dict[str
         f"pool: {len(pool)} samples ({len(train_set)} train, {len(val_set)} validation), preset {preset.name}, {device}"
     )
 
-    torch.manual_seed(options.seed)
-    model = PocoModel(preset).to(device)
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(options.seed)
+        model = PocoModel(preset).to(device)
     optimizer = torch.optim.Adam(model.parameters(), lr=options.lr)
     step = 0
     best = {"val_miou": -1.0}
     last_path, best_path = options.out / "last.pt", options.out / "best.pt"
-    if options.resume and last_path.exists():
+    if options.init is not None:
+        payload = torch.load(options.init, map_location=device, weights_only=True)
+        state = payload.get("state_dict", payload) if isinstance(payload, dict) else payload
+        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()})
+        step = int(payload.get("step", 0)) if isinstance(payload, dict) else 0
+        log(f"initialised from {options.init} (step {step}; new optimiser)")
+    elif options.resume and last_path.exists():
         payload = torch.load(last_path, map_location=device, weights_only=True)
         model.load_state_dict(payload["state_dict"])
         optimizer.load_state_dict(payload["optimizer"])
