@@ -253,7 +253,8 @@ def _incidence(rows: MaskArray, candidates: list[int]) -> tuple[list[int], list[
 _scheduler_threads: list[int] = []
 
 
-def _highs(threads: int, time_limit: float) -> highspy.Highs:
+def highs_solver(threads: int, time_limit: float) -> highspy.Highs:
+    """A HiGHS model set up for exact set cover (gaps 0, seeded, quiet); the one way to get one."""
     # HiGHS keeps one global thread pool per process, sized at its first run; a model asking for
     # another size fails ("Not Set") unless the pool is reset first.
     if _scheduler_threads and _scheduler_threads[0] != threads:
@@ -319,7 +320,7 @@ def _run_model(
     if not relax:
         lp.integrality_ = [highspy.HighsVarType.kInteger] * len(candidates)
     lp.sense_ = highspy.ObjSense.kMaximize if sense_maximise else highspy.ObjSense.kMinimize
-    solver = _highs(threads, time_limit)
+    solver = highs_solver(threads, time_limit)
     solver.passModel(lp)
     solver.run()
     status = solver.getModelStatus()

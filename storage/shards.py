@@ -66,15 +66,21 @@ class ShardReader:
     """Read access to one committed shard group; whole arrays are cached after first use."""
 
     def __init__(self, location: Location, relative: str) -> None:
+        self.location = location
         self.relative = relative
         self._group = zarr.open_group(zarr_store(location, relative, read_only=True), mode="r")
         self._cache: dict[str, npt.NDArray[Any]] = {}
+        self._nodes: dict[str, zarr.Array[Any]] = {}
         self.attributes = ShardAttributes.model_validate(dict(self._group.attrs))
 
     def _array(self, name: str) -> zarr.Array[Any]:
-        node = self._group[name]
-        if not isinstance(node, zarr.Array):
-            raise KeyError(f"{self.relative}: {name} is not an array")
+        """The array node, opened once (each open is a metadata read)."""
+        node = self._nodes.get(name)
+        if node is None:
+            found = self._group[name]
+            if not isinstance(found, zarr.Array):
+                raise KeyError(f"{self.relative}: {name} is not an array")
+            node = self._nodes[name] = found
         return node
 
     def array(self, name: str) -> npt.NDArray[Any]:
@@ -89,10 +95,28 @@ class ShardReader:
     def array_shape(self, name: str) -> tuple[int, ...]:
         return tuple(self._array(name).shape)
 
-    def chunks_complete(self, name: str) -> bool:
-        """Whether every chunk of an array is stored (a missing chunk would read as zeros)."""
-        array = self._array(name)
-        return array.size == 0 or array.nchunks_initialized == array.nchunks
+    def incomplete_arrays(self, names: list[str]) -> list[str]:
+        """The arrays with fewer stored objects (chunk or shard files) than their grid needs.
+
+        One listing of the group instead of one per array. A lost inner chunk of a shard file
+        cannot hide here: the file is written whole, and a damaged one fails its CRC32C on read.
+        """
+        root = self.location.path(self.relative).rstrip("/")
+        stored: dict[str, int] = {}
+        for path in self.location.fs.find(root):
+            parts = str(path)[len(root) :].strip("/").split("/")
+            if len(parts) > 2 and parts[1] == "c":
+                stored[parts[0]] = stored.get(parts[0], 0) + 1
+        incomplete = []
+        for name in names:
+            array = self._array(name)
+            if array.size == 0:
+                continue
+            grid = array.shards or array.chunks
+            needed = int(np.prod([-(-size // step) for size, step in zip(array.shape, grid, strict=True)]))
+            if stored.get(name, 0) < needed:
+                incomplete.append(name)
+        return sorted(incomplete)
 
     def array_dtype(self, name: str) -> np.dtype[Any]:
         return np.dtype(self._array(name).dtype)

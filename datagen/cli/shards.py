@@ -1,4 +1,4 @@
-"""``datagen shards``: inspect, validate and export datasets (``export`` for now).
+"""``datagen shards``: inspect, validate, relabel and export datasets (the group and ``export``).
 
 Registered in ``datagen/cli/main.py`` with ``app.add_typer(shards_app, name="shards")``.
 """
@@ -52,3 +52,7 @@ def export(
     with storage_errors():
         count = export_air(url, out, num_points=points, seed=seed, val_fraction=val)
         console.print(f"exported {count} samples to {out.resolve()}", markup=False, highlight=False, soft_wrap=True)
+
+
+# The other commands live in their own modules and register themselves on `shards_app`.
+from datagen.cli import shards_check, shards_view  # noqa: E402, F401

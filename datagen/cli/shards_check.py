@@ -1,0 +1,135 @@
+"""``datagen shards validate | relabel``: is a dataset right, and the same samples for another alpha.
+
+``validate`` joins two checkers: `storage.validate` (structure, index, every checked label covers
+its U; numpy only) and `datagen.inspection.label_check` (minimality and the lexicographic tie-break,
+with a solver). Where both see the same damage, the line is printed once.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from datagen.cli.common import console
+from datagen.cli.shards import shards_app, storage_errors
+
+if TYPE_CHECKING:
+    from datagen.inspection.label_check import LabelReport
+
+UrlArgument = Annotated[str, typer.Argument(metavar="URL", help="Dataset: a local path or an fsspec URL.")]
+
+
+def _options(url: str) -> dict[str, Any]:
+    from datagen.settings import RunSettings
+
+    return RunSettings().storage_options(url)
+
+
+def _say(text: str) -> None:
+    console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
+def _progress() -> Progress:
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=console,
+        transient=True,
+        disable=not console.is_terminal,  # a pipe or a test runner gets the result lines only
+    )
+
+
+@shards_app.command("validate")
+def validate(
+    url: UrlArgument,
+    every: Annotated[
+        bool, typer.Option("--all", help="Check every label with the solver (default: a seeded sample per shard).")
+    ] = False,
+    seed: Annotated[int, typer.Option("--seed", min=0, help="Seeds which rows are sampled without --all.")] = 0,
+) -> None:
+    """Check structure, index and labels (cover, minimum size, lexicographic choice); exit 0 only when all holds."""
+    from datagen.inspection.label_check import check_labels
+    from storage.location import StorageError
+    from storage.validate import validate as validate_storage
+
+    with storage_errors():
+        options = _options(url)
+        report: LabelReport | None = None
+        with _progress() as bar:
+            structure = bar.add_task("structure and index", total=None)
+            problems = validate_storage(url, full=every, seed=seed, storage_options=options)
+            bar.update(structure, total=1, completed=1)
+            labels = bar.add_task("labels, by task", total=None)
+            try:
+                report = check_labels(
+                    url,
+                    full=every,
+                    seed=seed,
+                    storage_options=options,
+                    progress=lambda done, total: bar.update(labels, completed=done, total=total),
+                )
+            except StorageError as exc:  # dataset.json unreadable: storage's lines already say so
+                if str(exc) not in problems:
+                    problems.append(str(exc))
+        checked, tasks = (report.checked, report.shards) if report is not None else (0, 0)
+        if report is not None:
+            problems.extend(_new_label_lines(problems, report))
+        for line in problems:
+            _say(line)
+        scope = "every label" if every else "a sample of labels"
+        if problems:
+            count = f"{len(problems)} problem" + ("s" if len(problems) > 1 else "")
+            _say(f"{count} ({checked} labels checked with the solver, {scope})")
+            raise typer.Exit(1)
+        _say(f"ok: {tasks} task{'s' if tasks != 1 else ''} sound, {checked} labels checked with the solver ({scope})")
+
+
+def _new_label_lines(storage_lines: list[str], report: LabelReport) -> list[str]:
+    """The label checker's lines, minus those storage already printed for the same shard or row."""
+    from datagen.inspection.label_check import UNCOVERED, UNREADABLE
+
+    shard_level = {line.split(":", 1)[0] for line in storage_lines}
+    lines = []
+    for problem in report.problems:
+        if problem.kind == UNREADABLE and problem.shard in shard_level:
+            continue
+        if problem.kind == UNCOVERED and any(
+            line.startswith(f"{problem.shard} row {problem.row}: label leaves") for line in storage_lines
+        ):
+            continue
+        lines.append(problem.line)
+    return lines
+
+
+@shards_app.command("relabel")
+def relabel(
+    url: UrlArgument,
+    alpha: Annotated[int, typer.Option("--alpha", min=1, help="The new alpha (views a key needs to enter P_full).")],
+    out: Annotated[str, typer.Option("--out", help="Where the new dataset goes (must not hold a dataset).")],
+) -> None:
+    """A new dataset: the same samples labelled for another alpha from the stored sets (no re-imaging)."""
+    from datagen.inspection.relabel import RelabelProgress, relabel_dataset
+
+    with storage_errors():
+        with _progress() as bar:
+            task = bar.add_task("relabelling tasks", total=None)
+
+            def advance(state: RelabelProgress) -> None:
+                bar.update(task, completed=state.tasks_done, total=state.tasks_total)
+
+            options = _options(url) or _options(out)
+            summary = relabel_dataset(url, alpha, out, storage_options=options, progress=advance)
+        _say(
+            f"relabelled {summary.samples} samples of {summary.tasks} tasks for alpha {summary.alpha} "
+            f"(source alpha {summary.source_alpha})"
+        )
+        _say(f"{summary.seconds:.1f} s, {summary.labels_per_second:.1f} labels/s")
+        if summary.dropped_empty or summary.failed_cases:
+            _say(f"{summary.dropped_empty} empty labels dropped, {summary.failed_cases} cases not proven optimal")
+        _say(f"carried over {summary.failures} failure records")
+        _say(f"dataset: {summary.out}")
+        _say(f"config hash: {summary.config_hash}")

@@ -1,0 +1,237 @@
+"""``datagen shards ls | show | stats``: what a dataset holds, read from its URL alone.
+
+Thin wrappers over `datagen.inspection`; tables are laid out for an 80-column terminal (short
+headers, long values folded onto more lines rather than cut). matplotlib is imported only for --png.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich import box
+from rich.table import Table
+
+from datagen.cli.common import console
+from datagen.cli.shards import shards_app, storage_errors
+from datagen.errors import OutputError
+from datagen.inspection.listing import FAILED, SampleDetails, TaskRow, describe_sample, find_sample, list_tasks
+from datagen.inspection.stats import DatasetStats, dataset_stats
+
+UrlArgument = Annotated[str, typer.Argument(metavar="URL", help="Dataset: a local path or an fsspec URL.")]
+PngOption = Annotated[Path | None, typer.Option("--png", metavar="FILE", help="Also draw it to this PNG file.")]
+
+
+def format_bytes(count: int) -> str:
+    """Bytes in binary units with three significant digits (``812 B``, ``10.6 KiB``, ``1.25 MiB``)."""
+    value = float(count)
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if value < 1024 or unit == "TiB":
+            return f"{count} B" if unit == "B" else f"{value:.3g} {unit}"
+        value /= 1024
+    raise AssertionError("unreachable")
+
+
+def format_seconds(seconds: float | None) -> str:
+    """Three significant digits in s, ms or µs."""
+    if seconds is None:
+        return "-"
+    if seconds >= 1:
+        return f"{seconds:.3g} s"
+    return f"{seconds * 1e3:.3g} ms" if seconds >= 1e-3 else f"{seconds * 1e6:.3g} µs"
+
+
+def plural(count: int, noun: str) -> str:
+    return f"{count} {noun}" if count == 1 else f"{count} {noun}s"
+
+
+def format_views(views: Sequence[int]) -> str:
+    return " ".join(str(v) for v in views) if views else "none"
+
+
+def view_strip(details: SampleDetails) -> str:
+    """One character per view, in bit order: I input, L label, B both, . other."""
+    marks = []
+    for view in range(details.num_views):
+        chosen = (view in details.input_views, view in details.label_views)
+        marks.append({(True, False): "I", (False, True): "L", (True, True): "B"}.get(chosen, "."))
+    return "".join(marks)
+
+
+def _table(*headers: str, title: str | None = None) -> Table:
+    table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True, title_justify="left")
+    for header in headers:
+        numeric = header in {"rot", "samples", "points", "size", "cases", "empty", "p0", "p5", "p50", "p95", "p100"}
+        whole = numeric or header == "task"  # a task id reads (and is copied) best on one line
+        table.add_column(header, justify="right" if numeric else "left", overflow="fold", no_wrap=whole)
+    return table
+
+
+def write_png(path: Path, image: bytes, quiet: bool = False) -> None:
+    """Write a picture; ``quiet`` keeps stdout for JSON alone."""
+    try:
+        path.write_bytes(image)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}; give a writable --png path") from None
+    if not quiet:
+        _say(f"wrote {path}")
+
+
+def _say(text: str) -> None:
+    console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
+# -- ls -------------------------------------------------------------------------------------------
+
+
+def tasks_table(rows: list[TaskRow]) -> Table:
+    table = _table("task", "object", "rot", "samples", "points", "size", "state")
+    for row in rows:
+        stored = row.state != FAILED
+        table.add_row(
+            row.task_id,
+            row.object_name or "-",
+            "-" if row.rotation is None else str(row.rotation),
+            str(row.samples) if stored else "-",
+            str(row.points) if stored else "-",
+            format_bytes(row.bytes_on_disk) if stored else "-",
+            row.state,
+        )
+    return table
+
+
+@shards_app.command("ls")
+def ls(url: UrlArgument) -> None:
+    """One row per task: object, rotation, samples, points in its refined clouds, bytes on disk, and
+    whether it committed; each failed task's message follows the table."""
+    from storage.reader import open_dataset
+
+    with storage_errors():
+        rows = list_tasks(open_dataset(url))
+    console.print(tasks_table(rows))
+    failed = [row for row in rows if row.state == FAILED]
+    committed = len(rows) - len(failed)
+    total = sum(row.bytes_on_disk for row in rows)
+    _say(f"{committed} committed ({sum(r.samples for r in rows)} samples, {format_bytes(total)}), {len(failed)} failed")
+    for row in failed:
+        origin = f" ({row.origin})" if row.origin else ""
+        _say(f"failed {row.task_id}{origin}: {row.message}")
+
+
+# -- show -----------------------------------------------------------------------------------------
+
+
+def sample_table(details: SampleDetails) -> Table:
+    meta: dict[str, Any] = details.metadata
+    table = Table(box=None, show_header=False, pad_edge=False)
+    table.add_column("field", style="bold", no_wrap=True)
+    table.add_column("value", overflow="fold")
+    rows = [
+        ("sample", f"{meta['sample_id']} (row {details.row})"),
+        ("object", f"{meta['object_name']} (id {meta['object_id'][:16]}), rotation {meta['rotation']}"),
+        ("shard", f"{meta['shard']} row {meta['row']}"),
+        ("input views", f"{format_views(details.input_views)}  ({plural(len(details.input_views), 'view')})"),
+        ("label views", f"{format_views(details.label_views)}  ({plural(len(details.label_views), 'view')})"),
+        ("views", f"{view_strip(details)}  (I input, L label)"),
+        ("points", f"{details.points} refined P(O_S), {details.observed} observed keys(O_S)"),
+        ("sets", f"|P_full| {meta['full_size']}, |U| {meta['universe_size']}"),
+        ("solver", f"{meta['solver_status']}, proof {meta['solver_proof']}, objective {meta['solver_objective']}"),
+        ("solver time", format_seconds(meta["solver_seconds"])),
+        ("cover rows", f"{meta['rows_before']} -> {meta['rows_after']} after merging and dominance"),
+        ("refiner", f"{meta['refiner']} (weights {meta['weights_id'] or '-'}, {meta['device']}), seed {meta['seed']}"),
+        ("config", f"{meta['config_hash'][:16]}, schema {meta['schema_version']}"),
+    ]
+    for field, value in rows:
+        table.add_row(field, value)
+    return table
+
+
+@shards_app.command("show")
+def show(
+    url: UrlArgument,
+    sample: Annotated[str, typer.Argument(metavar="SAMPLE", help="An index row number or a sample id.")],
+    png: PngOption = None,
+) -> None:
+    """One sample: its metadata, input and label views, point counts and solver record; --png draws
+    its clouds and views."""
+    from storage.reader import open_dataset
+
+    with storage_errors():
+        dataset = open_dataset(url)
+        details = describe_sample(dataset, find_sample(dataset, sample))
+        console.print(sample_table(details))
+        if png is not None:
+            from datagen.inspection.plots import draw_sample
+
+            row = details.row
+            image = draw_sample(
+                dataset.centres(dataset.keys(row, "points")),
+                dataset.centres(dataset.keys(row, "observed")),
+                dataset.info.view_positions,
+                details.input_views,
+                details.label_views,
+                title=f"{details.metadata['sample_id']} ({details.metadata['object_name']})",
+            )
+            write_png(png, image)
+
+
+# -- stats ----------------------------------------------------------------------------------------
+
+
+def _histogram_text(histogram: dict[int, int]) -> str:
+    return "  ".join(f"{size}:{count}" for size, count in histogram.items())
+
+
+def print_stats(stats: DatasetStats) -> None:
+    _say(
+        f"{stats.samples} samples in {stats.committed_tasks} committed tasks, {len(stats.failed)} failed; "
+        f"{stats.empty_labels} empty labels"
+    )
+    per_object = _table("object", "samples", "per rotation (rotation:samples)", title="samples per object")
+    for name, count in stats.samples_per_object.items():
+        rotations = {t.rotation: t.samples for t in stats.samples_per_task if t.object_name == name}
+        per_object.add_row(name, str(count), _histogram_text(rotations))
+    console.print(per_object)
+
+    per_case = _table("|S|", "cases", "empty", "label sizes (|L|:cases)", title="cases per case size")
+    for case_size, count in stats.cases_per_case_size.items():
+        labels = stats.label_sizes.get(case_size, {})
+        per_case.add_row(str(case_size), str(count), str(labels.get(0, 0)), _histogram_text(labels))
+    console.print(per_case)
+
+    spread = _table("per sample", "p0", "p5", "p50", "p95", "p100", title="percentiles")
+    spread.add_row("points", *("-" if v is None else f"{v:.0f}" for v in stats.points_percentiles.values()))
+    spread.add_row("solver time", *(format_seconds(v) for v in stats.solver_seconds_percentiles.values()))
+    console.print(spread)
+    _say("proofs: " + (", ".join(f"{kind} {count}" for kind, count in stats.solver_proofs.items()) or "none"))
+
+    if stats.failed:
+        failed = _table("task", "object", "message", title="failed tasks")
+        for task in stats.failed:
+            failed.add_row(task.task_id, task.object_name or "-", task.message)
+        console.print(failed)
+
+
+@shards_app.command("stats")
+def stats(
+    url: UrlArgument,
+    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of tables.")] = False,
+    png: PngOption = None,
+) -> None:
+    """Samples per object and rotation, cases and label sizes per case size, empty labels, points and
+    solver time percentiles, failed tasks; --json for machines, --png for the histograms."""
+    from storage.reader import open_dataset
+
+    with storage_errors():
+        summary = dataset_stats(open_dataset(url))
+        if as_json:
+            typer.echo(json.dumps(summary.to_json(), indent=1))
+        else:
+            print_stats(summary)
+        if png is not None:
+            from datagen.inspection.plots import draw_stats
+
+            write_png(png, draw_stats(summary), quiet=as_json)

@@ -1,0 +1,474 @@
+"""Check stored labels against a solve of our own (PIPELINE.md sections 5 and 7).
+
+`storage.validate` only asks whether a label covers its U. Here every checked label must also be a
+minimum cover and, among the minimum covers, the lexicographically smallest sorted tuple of views;
+the index must hold the same label as the shard. The coverage is rebuilt from the shard's stored P_i
+at the dataset's alpha, and the expected label is found by other means than `datagen.setcover`
+(greedy and LP bounds, a MIP, a pruned depth-first search), so a bug there cannot hide here:
+
+- views forced by single-view rows are in every cover and are taken first;
+- smaller sizes than the label's are ruled out by trying every combination of the remaining views
+  (bitsets, vectorised), or by one HiGHS MIP when there are more than `SEARCH_LIMIT`;
+- at the minimum size, combinations are tried in lexicographic order (`itertools.combinations`
+  order) up to the label's own position: the first cover is the answer, by definition. When that
+  position is too far, views are fixed in ascending order instead, each kept while a cover of the
+  minimum size still exists with it (one HiGHS feasibility model per view).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import threading
+import zlib
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any
+
+import highspy
+import numpy as np
+import numpy.typing as npt
+from pydantic import ValidationError
+
+from datagen import setcover
+from schemas.index import CommitRecord
+from schemas.shard import LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
+from storage.dataset_info import read_info
+from storage.location import Location, open_location
+from storage.reader import load_index
+from storage.shards import ShardReader
+from storage.validate import SAMPLED_ROWS_PER_SHARD
+from storage.writer import COMMITS
+
+MaskArray = npt.NDArray[np.uint64]
+
+SEARCH_LIMIT = 2_000_000
+"""Most view combinations tried by enumeration for one label; beyond it HiGHS decides."""
+DENSE_CELLS = 1 << 24
+"""Largest key bounding box (cells) `full_masks` covers with a dense grid (128 MiB of uint64)."""
+READ_THREADS = 2
+"""Shards checked at once (their reads overlap; results keep the task order)."""
+CHUNK = 4096
+"""Combinations tested per vectorised step."""
+TIME_LIMIT = 30.0
+"""Seconds per HiGHS model; a model not solved in time is reported, never guessed."""
+
+_HIGHS_LOCK = threading.Lock()
+
+UNREADABLE = "unreadable"
+UNCOVERED = "uncovered"
+NOT_MINIMUM = "not-minimum"
+NOT_LEXICOGRAPHIC = "not-lexicographic"
+INDEX_MISMATCH = "index-mismatch"
+UNSOLVED = "unsolved"
+
+Progress = Callable[[int, int], None]
+"""Called with (shards done, shards in all) after each shard."""
+
+
+@dataclass(frozen=True)
+class LabelProblem:
+    """One line of the report, with where it is, so callers can merge it with storage's lines."""
+
+    shard: str
+    row: int | None
+    """Row in the shard; None for a problem with the whole shard."""
+    kind: str
+    line: str
+
+
+@dataclass
+class LabelReport:
+    problems: list[LabelProblem] = field(default_factory=list)
+    checked: int = 0
+    """Labels checked with the solver."""
+    shards: int = 0
+
+
+@dataclass(frozen=True)
+class Expected:
+    """The label the rules call for: the lexicographically smallest minimum cover of U."""
+
+    size: int
+    label: int
+
+
+def views_text(mask: int) -> str:
+    """A mask as the set of its views, e.g. ``{3, 17}``."""
+    return "{" + ", ".join(str(v) for v in range(mask.bit_length()) if mask >> v & 1) + "}"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the dataset
+# ---------------------------------------------------------------------------------------------------------
+
+
+def check_labels(
+    url: str,
+    full: bool = False,
+    seed: int = 0,
+    storage_options: dict[str, Any] | None = None,
+    progress: Progress | None = None,
+    search_limit: int = SEARCH_LIMIT,
+) -> LabelReport:
+    """Check every label (``full``) or a seeded sample of `SAMPLED_ROWS_PER_SHARD` per shard.
+
+    Raises `StorageError` when ``dataset.json`` cannot be read; a shard that cannot be read is one
+    problem line and the others are still checked.
+    """
+    location = open_location(url, storage_options)
+    info = read_info(location)
+    records = _readable_commits(location)
+    index_rows = _index_rows(location, records)
+    report = LabelReport(shards=len(records))
+
+    def check(record: CommitRecord) -> tuple[list[LabelProblem], int]:
+        # One generator per task, seeded by its id: the sampled rows do not depend on the other tasks.
+        rng = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(record.task_id.encode())]))
+        return _check_shard(location, record, info.config.alpha, info.num_views, full, rng, index_rows, search_limit)
+
+    # Reading a shard mostly waits on storage (zarr's event loop, decompression): overlap a few.
+    with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
+        for done, (problems, checked) in enumerate(pool.map(check, records), start=1):
+            report.problems.extend(problems)
+            report.checked += checked
+            if progress:
+                progress(done, len(records))
+    return report
+
+
+def _readable_commits(location: Location) -> list[CommitRecord]:
+    """Commit records that parse, sorted by task; `storage.validate` reports the others."""
+    records = []
+    for name in location.listdir(COMMITS):
+        if name.endswith(".json"):
+            try:
+                records.append(CommitRecord.model_validate_json(location.read_bytes(f"{COMMITS}/{name}")))
+            except (ValidationError, OSError):
+                continue
+    return sorted(records, key=lambda r: r.task_id)
+
+
+def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tuple[str, int], tuple[str, int]]:
+    """(shard, row) -> (sample id, label) as the index holds them; empty when the index cannot be
+    read (`storage.validate` says why)."""
+    try:
+        index = load_index(location, records).select(["shard", "row", "sample_id", "label"])
+    except Exception:
+        return {}
+    shards, rows, names, labels = (index.column(c).to_pylist() for c in ("shard", "row", "sample_id", "label"))
+    return {(s, r): (n, int(label)) for s, r, n, label in zip(shards, rows, names, labels, strict=True)}
+
+
+def _sample_id(task_id: str, case: int) -> str:
+    """The id of a sample the index does not name (imported late: `datagen.task` loads the pipeline)."""
+    from datagen.task import sample_id
+
+    return sample_id(task_id, case)
+
+
+def _check_shard(
+    location: Location,
+    record: CommitRecord,
+    alpha: int,
+    num_views: int,
+    full: bool,
+    rng: np.random.Generator,
+    index_rows: dict[tuple[str, int], tuple[str, int]],
+    search_limit: int,
+) -> tuple[list[LabelProblem], int]:
+    """The shard's label problems and how many labels were checked."""
+    where = record.shard
+    try:
+        shard = ShardReader(location, where)
+        masks = shard.array(MASKS)
+        refined, offsets = _refined_sets(shard, num_views)
+    except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
+        line = f"{where}: cannot check labels ({type(exc).__name__}: {exc})"
+        return [LabelProblem(where, None, UNREADABLE, line)], 0
+    if masks.dtype != MASK_DTYPE or masks.ndim != 2 or masks.shape[1] != 2:
+        return [LabelProblem(where, None, UNREADABLE, f"{where}: cannot check labels (masks {masks.shape})")], 0
+    cover = TaskRows.from_masks(full_masks(refined, offsets, alpha), search_limit)
+    count = masks.shape[0]
+    rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
+    problems: list[LabelProblem] = []
+    for row in rows.tolist():
+        case, label = int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN])
+        indexed = index_rows.get((where, row))
+        name = indexed[0] if indexed else _sample_id(shard.attributes.task_id, case)
+        problems.extend(LabelProblem(where, row, kind, f"{name}: {text}") for kind, text in cover.judge(case, label))
+        if indexed is not None and indexed[1] != label:
+            text = f"the index says label {views_text(indexed[1])}, the shard holds {views_text(label)}"
+            problems.append(LabelProblem(where, row, INDEX_MISMATCH, f"{name}: {text}"))
+    return problems, int(rows.size)
+
+
+def _refined_sets(shard: ShardReader, num_views: int) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.int64]]:
+    """The stored P_i (keys and offsets), refusing offsets that do not describe the key array."""
+    keys, offsets = shard.array(keys_array("refined")), shard.array(offsets_array("refined"))
+    if offsets.shape != (num_views + 1,) or offsets[0] != 0 or offsets[-1] != keys.shape[0]:
+        raise ValueError(f"refined offsets {offsets.shape} do not match {keys.shape[0]} keys and {num_views} views")
+    if (np.diff(offsets) < 0).any():
+        raise ValueError("refined offsets are not monotone")
+    if keys.ndim != 2 or keys.shape[1] != 3:
+        raise ValueError(f"refined keys have shape {keys.shape}")
+    return keys, offsets
+
+
+def full_masks(keys: npt.NDArray[np.integer], offsets: npt.NDArray[np.int64], alpha: int) -> MaskArray:
+    """For each key of P_full (in at least ``alpha`` of the P_i), the mask of the views holding it.
+
+    Each view ORs its bit into its keys' cells of a dense grid over the keys' bounding box (no sort;
+    a few milliseconds a task); a box too large for memory falls back to sorting the cell numbers.
+    """
+    if keys.shape[0] == 0:
+        return np.empty(0, dtype=np.uint64)
+    k = keys.astype(np.int64)
+    low = k.min(axis=0)
+    extent = k.max(axis=0) - low + 1
+    cells = ((k[:, 0] - low[0]) * extent[1] + (k[:, 1] - low[1])) * extent[2] + (k[:, 2] - low[2])
+    volume = int(np.prod(extent))
+    if volume <= DENSE_CELLS:
+        grid = np.zeros(volume, dtype=np.uint64)
+        for view in range(offsets.size - 1):
+            grid[cells[offsets[view] : offsets[view + 1]]] |= np.uint64(1) << np.uint64(view)
+        masks = grid[grid != 0]
+    else:
+        views = np.repeat(np.arange(offsets.size - 1, dtype=np.uint64), np.diff(offsets))
+        distinct, inverse = np.unique(cells, return_inverse=True)
+        masks = np.zeros(distinct.size, dtype=np.uint64)
+        np.bitwise_or.at(masks, inverse, np.uint64(1) << views)
+    return masks[np.bitwise_count(masks) >= alpha]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# one task's rows and one label
+# ---------------------------------------------------------------------------------------------------------
+
+
+class TaskRows:
+    """The P_full masks of one task: distinct masks with their key counts, and the undominated ones.
+
+    For a case S, U's keys are those whose mask misses S; U's undominated masks are exactly the
+    task's undominated masks that miss S (a subset of a mask missing S misses S too), so the
+    reduction is done once per task.
+    """
+
+    def __init__(self, distinct: MaskArray, counts: npt.NDArray[np.int64], search_limit: int = SEARCH_LIMIT) -> None:
+        self.distinct = distinct
+        self.counts = counts
+        self.undominated = undominated(distinct)
+        self.search_limit = search_limit
+
+    @classmethod
+    def from_masks(cls, masks: npt.ArrayLike, search_limit: int = SEARCH_LIMIT) -> TaskRows:
+        distinct, counts = np.unique(np.asarray(masks, dtype=np.uint64), return_counts=True)
+        return cls(distinct, counts.astype(np.int64), search_limit)
+
+    def judge(self, case: int, label: int) -> Iterator[tuple[str, str]]:
+        """(kind, text) for each rule the label breaks; nothing when it is the expected label."""
+        in_universe = (self.distinct & np.uint64(case)) == 0
+        missed = in_universe & ((self.distinct & np.uint64(label)) == 0)
+        if missed.any():
+            uncovered, total = int(self.counts[missed].sum()), int(self.counts[in_universe].sum())
+            yield UNCOVERED, f"label {views_text(label)} does not cover U ({uncovered} of {total} keys uncovered)"
+            return
+        rows = self.undominated[(self.undominated & np.uint64(case)) == 0]
+        try:
+            expected = expected_label(rows, label, self.search_limit)
+        except SolverFailure as exc:
+            yield UNSOLVED, f"label {views_text(label)} could not be checked ({exc})"
+            return
+        size = label.bit_count()
+        if size > expected.size:
+            yield NOT_MINIMUM, f"label {views_text(label)} covers U but is not minimum (k={size} > k*={expected.size})"
+        elif size < expected.size:
+            yield UNSOLVED, f"label {views_text(label)} covers U with k={size} < k*={expected.size}: the check is wrong"
+        elif label != expected.label:
+            text = f"label {views_text(label)} is minimum but not the lexicographic choice {views_text(expected.label)}"
+            yield NOT_LEXICOGRAPHIC, text
+
+
+def undominated(masks: npt.ArrayLike) -> MaskArray:
+    """Distinct masks that contain no other mask, sorted: a cover of these covers every mask."""
+    distinct = np.unique(np.asarray(masks, dtype=np.uint64))
+    keep = np.ones(distinct.size, dtype=bool)
+    for start in range(0, distinct.size, 512):
+        block = distinct[start : start + 512]
+        subset = (block[:, None] & distinct[None, :]) == distinct[None, :]  # distinct[j] within block[i]
+        subset[np.arange(block.size), np.arange(start, start + block.size)] = False
+        keep[start : start + block.size] = ~subset.any(axis=1)
+    return distinct[keep]
+
+
+class SolverFailure(Exception):
+    """HiGHS did not prove its answer (time limit or error): the label is neither passed nor failed."""
+
+
+def expected_label(rows: MaskArray, label: int, search_limit: int = SEARCH_LIMIT) -> Expected:
+    """The lexicographically smallest minimum cover of ``rows``, given ``label``, a cover, as a bound.
+
+    Sizes below |label| are ruled out by trying every combination (or by HiGHS when there are too
+    many); at the minimum size, combinations are tried in lexicographic order up to the label's own
+    position (or views are fixed one at a time with HiGHS when that position is too far).
+    """
+    if rows.size == 0:
+        return Expected(0, 0)
+    if (rows == 0).any():
+        raise SolverFailure("a key of U is seen by no view")
+    if not bool(((rows & np.uint64(label)) != 0).all()):
+        raise SolverFailure("the label does not cover U")
+    singles = rows[np.bitwise_count(rows) == 1]
+    forced = int(np.bitwise_or.reduce(singles)) if singles.size else 0
+    rest = rows[(rows & np.uint64(forced)) == 0]
+    if rest.size == 0:
+        return Expected(forced.bit_count(), forced)
+    union = int(np.bitwise_or.reduce(rest))
+    candidates = [v for v in range(union.bit_length()) if union >> v & 1]
+    free = label & union  # the label's views that cover something forced views leave open
+    cover = _Bitsets(rest, candidates)
+    size, m = free.bit_count(), len(candidates)
+    if sum(math.comb(m, j) for j in range(1, size)) <= search_limit:
+        for smaller in range(1, size):
+            found = cover.first(smaller, math.comb(m, smaller))
+            if found is not None:
+                return Expected(forced.bit_count() + smaller, forced | found)
+    else:
+        minimum = _min_cover_size(rest, candidates, {})
+        if minimum is None:
+            raise SolverFailure("HiGHS finds no cover")
+        size = min(size, minimum)
+    if size == free.bit_count():
+        positions = [candidates.index(v) for v in candidates if free >> v & 1]
+        tries = lexicographic_rank(positions, m) + 1
+    else:
+        tries = math.comb(m, size)
+    found = cover.first(size, tries) if tries <= search_limit else None
+    if found is None:
+        found = _highs_lexicographic(rest, candidates, size)
+    return Expected(forced.bit_count() + size, forced | found)
+
+
+def lexicographic_rank(positions: Sequence[int], m: int) -> int:
+    """Rank of a sorted k-combination of range(m) in lexicographic order (0 for (0, 1, .., k-1))."""
+    k, rank, previous = len(positions), 0, -1
+    for i, p in enumerate(positions):
+        rank += sum(math.comb(m - 1 - q, k - 1 - i) for q in range(previous + 1, p))
+        previous = p
+    return rank
+
+
+class _Bitsets:
+    """For each candidate view, the rows it covers as a bitset (uint64 words): a combination covers
+    every row when the OR of its views' bitsets is all ones."""
+
+    def __init__(self, rows: MaskArray, candidates: list[int]) -> None:
+        self.candidates = candidates
+        incidence = ((rows[None, :] >> np.array(candidates, dtype=np.uint64)[:, None]) & np.uint64(1)).astype(bool)
+        self.columns = self._pack(incidence)
+        self.full = self._pack(np.ones((1, rows.size), dtype=bool))[0]
+
+    @staticmethod
+    def _pack(bits: npt.NDArray[np.bool_]) -> npt.NDArray[np.uint64]:
+        packed = np.packbits(bits, axis=1, bitorder="little")
+        padded = np.zeros((packed.shape[0], -(-packed.shape[1] // 8) * 8), dtype=np.uint8)
+        padded[:, : packed.shape[1]] = packed
+        return padded.view(np.uint64)
+
+    def first(self, size: int, tries: int) -> int | None:
+        """Mask of the first cover among the first ``tries`` size-combinations in lexicographic order."""
+        done = 0
+        for chunk in _combination_chunks(len(self.candidates), size):
+            combinations = chunk[: tries - done]
+            covered = np.bitwise_or.reduce(self.columns[combinations], axis=1)
+            hits = (covered == self.full[None, :]).all(axis=1)
+            if hits.any():
+                return sum(1 << self.candidates[i] for i in combinations[int(np.argmax(hits))].tolist())
+            done += combinations.shape[0]
+            if done >= tries:
+                break
+        return None
+
+
+def _combination_chunks(m: int, size: int) -> Iterator[npt.NDArray[np.intp]]:
+    """Every size-combination of range(m) in lexicographic order, `CHUNK` rows at a time."""
+    if math.comb(m, size) <= CHUNK:
+        yield _small_combinations(m, size)
+        return
+    combinations = itertools.combinations(range(m), size)
+    while True:
+        flat = np.fromiter(
+            itertools.chain.from_iterable(itertools.islice(combinations, CHUNK)), dtype=np.intp, count=-1
+        )
+        if flat.size == 0:
+            return
+        yield flat.reshape(-1, size)
+
+
+@lru_cache(maxsize=512)
+def _small_combinations(m: int, size: int) -> npt.NDArray[np.intp]:
+    flat = np.fromiter(itertools.chain.from_iterable(itertools.combinations(range(m), size)), dtype=np.intp)
+    return flat.reshape(-1, size)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# HiGHS, when enumeration would take too long
+# ---------------------------------------------------------------------------------------------------------
+
+
+def _highs_lexicographic(rows: MaskArray, candidates: list[int], size: int) -> int:
+    """Views fixed in ascending order, each kept while a cover of ``size`` views remains with it."""
+    fixed: dict[int, int] = {}
+    taken = 0
+    for view in candidates:
+        if taken < size and _min_cover_size(rows, candidates, {**fixed, view: 1}, exactly=size) == size:
+            fixed[view], taken = 1, taken + 1
+        else:
+            fixed[view] = 0
+    chosen = sum(1 << v for v, x in fixed.items() if x)
+    if taken != size or not bool(((rows & np.uint64(chosen)) != 0).all()):
+        raise SolverFailure("the tie-break by fixing views did not end on a cover of the minimum size")
+    return chosen
+
+
+def _min_cover_size(
+    rows: MaskArray, candidates: list[int], fixed: dict[int, int], exactly: int | None = None
+) -> int | None:
+    """Fewest candidate views covering every row with some views fixed (None: no such cover).
+
+    With ``exactly`` the view count is pinned and the model is a feasibility question.
+    """
+    m = len(candidates)
+    incidence = ((rows[:, None] >> np.array(candidates, dtype=np.uint64)[None, :]) & np.uint64(1)).astype(bool)
+    starts = np.concatenate([[0], np.cumsum(incidence.sum(axis=1))]).astype(np.int32)
+    columns = np.nonzero(incidence)[1].astype(np.int32)
+    values = np.ones(columns.size)
+    lower_rows, upper_rows = np.ones(rows.size), np.full(rows.size, highspy.kHighsInf)
+    if exactly is not None:
+        starts = np.append(starts, starts[-1] + m).astype(np.int32)
+        columns = np.concatenate([columns, np.arange(m, dtype=np.int32)])
+        values = np.concatenate([values, np.ones(m)])
+        lower_rows, upper_rows = np.append(lower_rows, exactly), np.append(upper_rows, exactly)
+    lp = highspy.HighsLp()
+    lp.num_col_, lp.num_row_ = m, lower_rows.size
+    lp.col_cost_ = np.zeros(m) if exactly is not None else np.ones(m)
+    lp.col_lower_ = np.array([1.0 if fixed.get(v) == 1 else 0.0 for v in candidates])
+    lp.col_upper_ = np.array([0.0 if fixed.get(v) == 0 else 1.0 for v in candidates])
+    lp.row_lower_, lp.row_upper_ = lower_rows, upper_rows
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.start_, lp.a_matrix_.index_, lp.a_matrix_.value_ = starts, columns, values
+    lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = m, lower_rows.size
+    lp.integrality_ = [highspy.HighsVarType.kInteger] * m
+    # setcover's factory: HiGHS sizes one thread pool per process, and it keeps track of that size.
+    with _HIGHS_LOCK:  # shards are checked on a few threads; HiGHS's scheduler is one per process
+        solver = setcover.highs_solver(1, TIME_LIMIT)
+        solver.passModel(lp)
+        solver.run()
+    status = solver.getModelStatus()
+    if status == highspy.HighsModelStatus.kInfeasible:
+        return None
+    if status != highspy.HighsModelStatus.kOptimal:
+        raise SolverFailure(f"HiGHS: {solver.modelStatusToString(status)}")
+    return round(sum(solver.getSolution().col_value))

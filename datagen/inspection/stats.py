@@ -1,0 +1,134 @@
+"""Dataset statistics for ``shards stats``: read from the Parquet index and the commit and failure
+records alone (no shard is opened), so they stay fast on tens of thousands of samples and any URL."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from datagen.inspection.listing import failed_tasks
+from storage.reader import Dataset
+from storage.writer import committed_tasks
+
+PERCENTILES = (0, 5, 50, 95, 100)
+"""The percentiles reported for per-sample quantities (numpy's default linear interpolation)."""
+
+
+@dataclass(frozen=True)
+class TaskCount:
+    """Samples of one (object, rotation)."""
+
+    object_name: str
+    rotation: int
+    samples: int
+
+
+@dataclass(frozen=True)
+class FailedTask:
+    task_id: str
+    object_name: str
+    origin: str
+    message: str
+
+
+@dataclass(frozen=True)
+class DatasetStats:
+    """What a dataset holds, summarised; `to_json` gives the machine-readable form."""
+
+    url: str
+    samples: int
+    committed_tasks: int
+    samples_per_object: dict[str, int]
+    """By object name, sorted."""
+    samples_per_task: list[TaskCount]
+    """By (object name, rotation), sorted."""
+    cases_per_case_size: dict[int, int]
+    """Number of input views |S| -> samples."""
+    label_sizes: dict[int, dict[int, int]]
+    """Case size -> label size |L| -> samples (the label-size histogram per case size)."""
+    empty_labels: int
+    points_percentiles: dict[str, float | None]
+    """``p0``...``p100`` of the refined cloud size per sample (None without samples)."""
+    solver_seconds_percentiles: dict[str, float | None]
+    """``p0``...``p100`` of the labelling time per sample, empty labels included."""
+    solver_proofs: dict[str, int]
+    """How each label was proven optimal ('none' for an empty label) -> samples."""
+    failed: list[FailedTask]
+    points_per_sample: npt.NDArray[np.int64] = field(repr=False, compare=False)
+    """The raw values behind the percentiles, for the histograms (not in `to_json`)."""
+    solver_seconds: npt.NDArray[np.float64] = field(repr=False, compare=False)
+
+    def to_json(self) -> dict[str, Any]:
+        """Plain dicts, lists and numbers (integer keys written as strings, as JSON requires)."""
+        return {
+            "url": self.url,
+            "samples": self.samples,
+            "committed_tasks": self.committed_tasks,
+            "failed_tasks": len(self.failed),
+            "samples_per_object": dict(self.samples_per_object),
+            "samples_per_task": [
+                {"object": t.object_name, "rotation": t.rotation, "samples": t.samples} for t in self.samples_per_task
+            ],
+            "cases_per_case_size": {str(k): v for k, v in self.cases_per_case_size.items()},
+            "label_sizes": {
+                str(size): {str(k): v for k, v in histogram.items()} for size, histogram in self.label_sizes.items()
+            },
+            "empty_labels": self.empty_labels,
+            "points_percentiles": dict(self.points_percentiles),
+            "solver_seconds_percentiles": dict(self.solver_seconds_percentiles),
+            "solver_proofs": dict(self.solver_proofs),
+            "failed": [
+                {"task_id": f.task_id, "object": f.object_name, "origin": f.origin, "message": f.message}
+                for f in self.failed
+            ],
+        }
+
+
+def percentiles(values: npt.NDArray[Any]) -> dict[str, float | None]:
+    """``{"p0": ..., "p100": ...}`` of `PERCENTILES`; None values for an empty array."""
+    if values.size == 0:
+        return {f"p{q}": None for q in PERCENTILES}
+    found = np.percentile(values.astype(np.float64), PERCENTILES)
+    return {f"p{q}": float(v) for q, v in zip(PERCENTILES, found, strict=True)}
+
+
+def _sorted_counts(values: list[Any]) -> dict[Any, int]:
+    return dict(sorted(Counter(values).items()))
+
+
+def dataset_stats(dataset: Dataset) -> DatasetStats:
+    """Statistics of every committed sample, plus the failed tasks (from the failure records)."""
+    index = dataset.index
+    objects = index.column("object_name").to_pylist()
+    rotations = index.column("rotation").to_pylist()
+    case_sizes = index.column("case_size").to_pylist()
+    label_sizes = index.column("label_size").to_pylist()
+    histogram: dict[int, dict[int, int]] = {}
+    for (case_size, label_size), count in sorted(Counter(zip(case_sizes, label_sizes, strict=True)).items()):
+        histogram.setdefault(int(case_size), {})[int(label_size)] = count
+    points = index.column("num_points").to_numpy().astype(np.int64)
+    seconds = index.column("solver_seconds").to_numpy().astype(np.float64)
+    committed = {record.task_id for record in committed_tasks(dataset.location)}
+    return DatasetStats(
+        url=dataset.url,
+        samples=len(dataset),
+        committed_tasks=len(committed),
+        samples_per_object=_sorted_counts(objects),
+        samples_per_task=[
+            TaskCount(name, int(rotation), count)
+            for (name, rotation), count in _sorted_counts(list(zip(objects, rotations, strict=True))).items()
+        ],
+        cases_per_case_size={int(k): v for k, v in _sorted_counts(case_sizes).items()},
+        label_sizes=histogram,
+        empty_labels=int(np.count_nonzero(index.column("empty_label").to_numpy(zero_copy_only=False))),
+        points_percentiles=percentiles(points),
+        solver_seconds_percentiles=percentiles(seconds),
+        solver_proofs=_sorted_counts(index.column("solver_proof").to_pylist()),
+        failed=[FailedTask(t.task_id, t.object_name, t.origin, t.message) for t in failed_tasks(dataset, committed)],
+        points_per_sample=points,
+        solver_seconds=seconds,
+    )
