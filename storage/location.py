@@ -165,4 +165,8 @@ def open_location(url: str, storage_options: dict[str, Any] | None = None) -> Lo
         raise StorageError(f"{url}: unsupported dataset URL ({exc}); use a local path or an fsspec URL") from None
     if isinstance(fs, LocalFileSystem):
         root = os.path.abspath(root)
+    if is_s3(url) and hasattr(fs, "retries"):
+        # s3fs retries failed calls itself (5 times) on top of botocore's own attempts
+        # (storage_options' config_kwargs); one layer of retries keeps the bound what settings say.
+        fs.retries = 1
     return Location(fs=fs, root=str(root).rstrip("/") or "/", url=url, storage_options=storage_options)
