@@ -121,7 +121,12 @@ def register(app: typer.Typer) -> None:
         with _job_errors():
             settings = _settings(home, out, address, workers, refiner_gpus)
             job = api.enqueue(objects, config, settings)
-            console.print(f"job {job.job_id}: {len(job.spec['tasks'])} tasks -> {job.out}", highlight=False)
+            console.print(
+                f"job {job.job_id}: {len(job.spec['tasks'])} tasks -> {job.out}",
+                markup=False,
+                highlight=False,
+                soft_wrap=True,
+            )
             if detach:
                 console.print("queued; a running 'datagen serve' on this ledger will take it")
                 return
