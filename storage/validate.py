@@ -8,7 +8,7 @@ the row.
 from __future__ import annotations
 
 import io
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -43,10 +43,24 @@ SAMPLED_ROWS_PER_SHARD = 8
 SHARD_THREADS = 8
 
 
-def validate(url: str, full: bool = False, seed: int = 0, storage_options: dict[str, Any] | None = None) -> list[str]:
+ShardCheck = Callable[[CommitRecord, ShardReader], None]
+"""An extra check run on each structurally sound shard while its arrays are cached (so a caller such
+as the solver-based label check reads every shard once); it records its own findings. Called from
+worker threads."""
+
+
+def validate(
+    url: str,
+    full: bool = False,
+    seed: int = 0,
+    storage_options: dict[str, Any] | None = None,
+    shard_check: ShardCheck | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[str]:
     """Every problem found, one line each (empty when the dataset is sound).
 
     ``full=False`` checks coverage on a seeded sample of rows per shard; ``full=True`` on every row.
+    ``progress`` is called with (shards done, shards in all).
     """
     location = open_location(url, storage_options)
     try:
@@ -63,13 +77,15 @@ def validate(url: str, full: bool = False, seed: int = 0, storage_options: dict[
     def check(numbered: tuple[int, CommitRecord]) -> list[str]:
         number, record = numbered
         rng = np.random.default_rng([seed, number])  # one stream per shard: threads cannot reorder draws
-        return list(_check_shard(location, record, num_views, alpha, full, rng))
+        return list(_check_shard(location, record, num_views, alpha, full, rng, shard_check))
 
     # Shards are checked side by side: a shard costs ~40 small zarr reads whose latency (an event
     # loop round trip locally, a request on an object store) overlaps across threads.
     with ThreadPoolExecutor(max_workers=SHARD_THREADS) as pool:
-        for shard_problems in pool.map(check, enumerate(commits)):
+        for done, shard_problems in enumerate(pool.map(check, enumerate(commits)), start=1):
             problems.extend(shard_problems)
+            if progress:
+                progress(done, len(commits))
     problems.extend(_check_index(location, commits))
     return problems
 
@@ -87,7 +103,13 @@ def _read_commits(location: Location) -> tuple[list[CommitRecord], list[str]]:
 
 
 def _check_shard(
-    location: Location, record: CommitRecord, num_views: int, alpha: int, full: bool, rng: np.random.Generator
+    location: Location,
+    record: CommitRecord,
+    num_views: int,
+    alpha: int,
+    full: bool,
+    rng: np.random.Generator,
+    shard_check: ShardCheck | None = None,
 ) -> Iterator[str]:
     where = record.shard
     try:
@@ -128,7 +150,10 @@ def _check_shard(
     overlap = (masks[:, VIEW_STATE_COLUMN] & masks[:, LABEL_COLUMN]) != 0
     for row in np.flatnonzero(overlap):
         yield f"{where} row {row}: label shares views with the input case"
-    yield from _check_coverage(where, arrays, count, num_views, alpha, full, rng)
+    coverage = list(_check_coverage(where, arrays, count, num_views, alpha, full, rng))
+    yield from coverage
+    if shard_check is not None:
+        shard_check(record, shard)
 
 
 def _check_key_sets(where: str, arrays: dict[str, npt.NDArray[Any]], count: int, num_views: int) -> Iterator[str]:

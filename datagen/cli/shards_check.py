@@ -1,8 +1,9 @@
 """``datagen shards validate | relabel``: is a dataset right, and the same samples for another alpha.
 
-``validate`` joins two checkers: `storage.validate` (structure, index, every checked label covers
-its U; numpy only) and `datagen.inspection.label_check` (minimality and the lexicographic tie-break,
-with a solver). Where both see the same damage, the line is printed once.
+``validate`` joins two checkers in one pass over the shards: `storage.validate` (structure, index,
+every checked label covers its U; numpy only) and `datagen.inspection.label_check` (minimality and
+the lexicographic tie-break, with a solver) as its per-shard hook, so each shard is read once.
+Where both see the same damage, the line is printed once.
 """
 
 from __future__ import annotations
@@ -52,29 +53,29 @@ def validate(
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seeds which rows are sampled without --all.")] = 0,
 ) -> None:
     """Check structure, index and labels (cover, minimum size, lexicographic choice); exit 0 only when all holds."""
-    from datagen.inspection.label_check import check_labels
-    from storage.location import StorageError
+    from datagen.inspection.label_check import ShardLabelCheck
+    from storage.location import StorageError, open_location
     from storage.validate import validate as validate_storage
 
     with storage_errors():
         options = _options(url)
         report: LabelReport | None = None
+        try:
+            checker: ShardLabelCheck | None = ShardLabelCheck(open_location(url, options), full=every, seed=seed)
+        except StorageError:  # dataset.json unreadable: storage's own line says so
+            checker = None
         with _progress() as bar:
-            structure = bar.add_task("structure and index", total=None)
-            problems = validate_storage(url, full=every, seed=seed, storage_options=options)
-            bar.update(structure, total=1, completed=1)
-            labels = bar.add_task("labels, by task", total=None)
-            try:
-                report = check_labels(
-                    url,
-                    full=every,
-                    seed=seed,
-                    storage_options=options,
-                    progress=lambda done, total: bar.update(labels, completed=done, total=total),
-                )
-            except StorageError as exc:  # dataset.json unreadable: storage's lines already say so
-                if str(exc) not in problems:
-                    problems.append(str(exc))
+            shards = bar.add_task("shards: structure, coverage, labels", total=None)
+            problems = validate_storage(
+                url,
+                full=every,
+                seed=seed,
+                storage_options=options,
+                shard_check=checker,
+                progress=lambda done, total: bar.update(shards, completed=done, total=total),
+            )
+        if checker is not None:
+            report = checker.finish()
         checked, tasks = (report.checked, report.shards) if report is not None else (0, 0)
         if report is not None:
             problems.extend(_new_label_lines(problems, report))

@@ -139,6 +139,36 @@ def check_labels(
     return report
 
 
+class ShardLabelCheck:
+    """The label checks as a `storage.validate` shard hook: each shard is read once, for both.
+
+    Findings go to ``report`` (sorted by shard and row once `finish` is called); the rows checked in
+    a shard are drawn as `check_labels` draws them, so both paths judge the same labels.
+    """
+
+    def __init__(self, location: Location, full: bool, seed: int = 0, search_limit: int = SEARCH_LIMIT) -> None:
+        info = read_info(location)
+        records = _readable_commits(location)
+        self.alpha, self.num_views = info.config.alpha, info.num_views
+        self.full, self.seed, self.search_limit = full, seed, search_limit
+        self.index_rows = _index_rows(location, records)
+        self.report = LabelReport(shards=len(records))
+        self._lock = threading.Lock()
+
+    def __call__(self, record: CommitRecord, shard: ShardReader) -> None:
+        rng = np.random.default_rng(np.random.SeedSequence([self.seed, zlib.crc32(record.task_id.encode())]))
+        problems, checked = _check_reader(
+            shard, record, self.alpha, self.num_views, self.full, rng, self.index_rows, self.search_limit
+        )
+        with self._lock:
+            self.report.problems.extend(problems)
+            self.report.checked += checked
+
+    def finish(self) -> LabelReport:
+        self.report.problems.sort(key=lambda p: (p.shard, -1 if p.row is None else p.row, p.kind, p.line))
+        return self.report
+
+
 def _readable_commits(location: Location) -> list[CommitRecord]:
     """Commit records that parse, sorted by task; `storage.validate` reports the others."""
     records = []
@@ -180,9 +210,27 @@ def _check_shard(
     search_limit: int,
 ) -> tuple[list[LabelProblem], int]:
     """The shard's label problems and how many labels were checked."""
+    try:
+        shard = ShardReader(location, record.shard)
+    except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
+        line = f"{record.shard}: cannot check labels ({type(exc).__name__}: {exc})"
+        return [LabelProblem(record.shard, None, UNREADABLE, line)], 0
+    return _check_reader(shard, record, alpha, num_views, full, rng, index_rows, search_limit)
+
+
+def _check_reader(
+    shard: ShardReader,
+    record: CommitRecord,
+    alpha: int,
+    num_views: int,
+    full: bool,
+    rng: np.random.Generator,
+    index_rows: dict[tuple[str, int], tuple[str, int]],
+    search_limit: int,
+) -> tuple[list[LabelProblem], int]:
+    """The label problems of an open shard and how many labels were checked."""
     where = record.shard
     try:
-        shard = ShardReader(location, where)
         masks = shard.array(MASKS)
         refined, offsets = _refined_sets(shard, num_views)
     except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
