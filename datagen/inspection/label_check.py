@@ -116,27 +116,28 @@ def check_labels(
     """Check every label (``full``) or a seeded sample of `SAMPLED_ROWS_PER_SHARD` per shard.
 
     Raises `StorageError` when ``dataset.json`` cannot be read; a shard that cannot be read is one
-    problem line and the others are still checked.
+    problem line and the others are still checked. (`datagen shards validate` runs the same checks
+    as `storage.validate`'s per-shard hook instead, reading each shard once.)
     """
     location = open_location(url, storage_options)
-    info = read_info(location)
-    records = _readable_commits(location)
-    index_rows = _index_rows(location, records)
-    report = LabelReport(shards=len(records))
+    checker = ShardLabelCheck(location, full, seed, search_limit)
 
-    def check(record: CommitRecord) -> tuple[list[LabelProblem], int]:
-        # One generator per task, seeded by its id: the sampled rows do not depend on the other tasks.
-        rng = np.random.default_rng(np.random.SeedSequence([seed, zlib.crc32(record.task_id.encode())]))
-        return _check_shard(location, record, info.config.alpha, info.num_views, full, rng, index_rows, search_limit)
+    def check(record: CommitRecord) -> list[LabelProblem]:
+        try:
+            shard = ShardReader(location, record.shard)
+        except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
+            line = f"{record.shard}: cannot check labels ({type(exc).__name__}: {exc})"
+            return [LabelProblem(record.shard, None, UNREADABLE, line)]
+        checker(record, shard)
+        return []
 
     # Reading a shard mostly waits on storage (zarr's event loop, decompression): overlap a few.
     with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
-        for done, (problems, checked) in enumerate(pool.map(check, records), start=1):
-            report.problems.extend(problems)
-            report.checked += checked
+        for done, unreadable in enumerate(pool.map(check, checker.records), start=1):
+            checker.report.problems.extend(unreadable)
             if progress:
-                progress(done, len(records))
-    return report
+                progress(done, len(checker.records))
+    return checker.finish()
 
 
 class ShardLabelCheck:
@@ -148,11 +149,11 @@ class ShardLabelCheck:
 
     def __init__(self, location: Location, full: bool, seed: int = 0, search_limit: int = SEARCH_LIMIT) -> None:
         info = read_info(location)
-        records = _readable_commits(location)
+        self.records = _readable_commits(location)
         self.alpha, self.num_views = info.config.alpha, info.num_views
         self.full, self.seed, self.search_limit = full, seed, search_limit
-        self.index_rows = _index_rows(location, records)
-        self.report = LabelReport(shards=len(records))
+        self.index_rows = _index_rows(location, self.records)
+        self.report = LabelReport(shards=len(self.records))
         self._lock = threading.Lock()
 
     def __call__(self, record: CommitRecord, shard: ShardReader) -> None:
@@ -197,25 +198,6 @@ def _sample_id(task_id: str, case: int) -> str:
     from datagen.task import sample_id
 
     return sample_id(task_id, case)
-
-
-def _check_shard(
-    location: Location,
-    record: CommitRecord,
-    alpha: int,
-    num_views: int,
-    full: bool,
-    rng: np.random.Generator,
-    index_rows: dict[tuple[str, int], tuple[str, int]],
-    search_limit: int,
-) -> tuple[list[LabelProblem], int]:
-    """The shard's label problems and how many labels were checked."""
-    try:
-        shard = ShardReader(location, record.shard)
-    except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
-        line = f"{record.shard}: cannot check labels ({type(exc).__name__}: {exc})"
-        return [LabelProblem(record.shard, None, UNREADABLE, line)], 0
-    return _check_reader(shard, record, alpha, num_views, full, rng, index_rows, search_limit)
 
 
 def _check_reader(
