@@ -3,7 +3,7 @@
     python benchmarks/cases.py [--meshes DIR] [--seed 0]
 
 For every mesh of DIR (default ../shared/meshes), prepared at size 0.15 m, rotation 0, and for both
-imaging modes, it runs the whole task (`datagen.task.run_task`, refiner none, default config) and
+imaging modes, it runs the whole task (`datagen.pipeline.task.run_task`, refiner none, default config) and
 prints:
 
 - cases: the number of drawn cases (32 singletons + the multi-view cases);
@@ -29,12 +29,12 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from datagen.objects.prepare import prepare_object  # noqa: E402
-from datagen.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
-from datagen.refine import make_refiner  # noqa: E402
-from datagen.sampling import greedy_trajectories  # noqa: E402
-from datagen.task import run_task  # noqa: E402
-from datagen.viewspace import build_view_space  # noqa: E402
+from datagen.pipeline.cases import greedy_trajectories  # noqa: E402
+from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
+from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
+from datagen.pipeline.refine import make_refiner  # noqa: E402
+from datagen.pipeline.task import run_task  # noqa: E402
+from datagen.pipeline.viewspace import build_view_space  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

@@ -37,7 +37,7 @@ from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from datagen import api  # noqa: E402
-from datagen.objects.objects_file import read_objects_file  # noqa: E402
+from datagen.pipeline.objects.objects_file import read_objects_file  # noqa: E402
 from datagen.settings import RunSettings  # noqa: E402
 from jobs.ledger import DONE, Ledger  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402

@@ -2,7 +2,7 @@
 
     python benchmarks/end_to_end.py [--objects examples/builtin.txt] [--rotations 2] [--cpus 1 2]
 
-For each worker-CPU count it starts a private local Ray (`datagen.engine.ensure_ray`), runs a small
+For each worker-CPU count it starts a private local Ray (`datagen.engine.driver.ensure_ray`), runs a small
 warm-up job (so worker processes are started and have imported the pipeline), then times one job of
 every object of the objects file (default: the 22 built-ins) x ``--rotations`` rotations (default 2,
 to keep it short; otherwise the default generation config) through `datagen.api.submit`, and prints:
@@ -35,7 +35,7 @@ from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from datagen import api  # noqa: E402
-from datagen.engine import ensure_ray  # noqa: E402
+from datagen.engine.driver import ensure_ray  # noqa: E402
 from datagen.settings import RunSettings  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 from storage import committed_tasks, open_location  # noqa: E402

@@ -6,7 +6,7 @@ For every mesh of DIR (default ../shared/meshes), prepared at size 0.15 m, rotat
 imaging modes, it prints:
 
 - rays: rays cast over the 32 views (the same for both sides);
-- ours s: `datagen.imaging.image_task` for all 32 views (ray generation + Embree cast + float64
+- ours s: `datagen.pipeline.imaging.image_task` for all 32 views (ray generation + Embree cast + float64
   refinement + keying + observations), with P_gt precomputed and the Embree scene prebuilt, both
   excluded;
 - our cast s: `RayCaster.first_hits` alone on the prebuilt rays (Embree cast + float64 refinement),
@@ -42,15 +42,15 @@ import numpy as np  # noqa: E402
 REPO_ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO_ROOT / "tests"))
 
-from open3d_reference import Intrinsics, Open3DCaster, pixel_rays, target_rays  # noqa: E402
+from support.open3d_reference import Intrinsics, Open3DCaster, pixel_rays, target_rays  # noqa: E402
 
-from datagen.ground_truth import GroundTruth, sample_ground_truth  # noqa: E402
-from datagen.imaging import SPHERE_MARGIN, image_task  # noqa: E402
-from datagen.objects.prepare import prepare_object  # noqa: E402
-from datagen.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
-from datagen.raycast import RayCaster  # noqa: E402
-from datagen.streams import Purpose, stream  # noqa: E402
-from datagen.viewspace import build_view_space  # noqa: E402
+from datagen.pipeline.ground_truth import GroundTruth, sample_ground_truth  # noqa: E402
+from datagen.pipeline.imaging import SPHERE_MARGIN, image_task  # noqa: E402
+from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
+from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
+from datagen.pipeline.random_streams import Purpose, stream  # noqa: E402
+from datagen.pipeline.raycast import RayCaster  # noqa: E402
+from datagen.pipeline.viewspace import build_view_space  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 
 MESH_SUFFIXES = {".obj", ".ply", ".stl", ".off", ".glb"}

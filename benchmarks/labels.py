@@ -41,15 +41,15 @@ from pathlib import Path  # noqa: E402
 import highspy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from datagen.coverage import coverage_table, filter_to_ground_truth  # noqa: E402
-from datagen.objects.prepare import prepare_object  # noqa: E402
-from datagen.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
-from datagen.refine import RefineRequest, make_refiner, refined_keys  # noqa: E402
-from datagen.sampling import long_tail_cases  # noqa: E402
-from datagen.scanning import scan_task  # noqa: E402
-from datagen.setcover import CoverResult, TaskCover  # noqa: E402
-from datagen.streams import Purpose, stream  # noqa: E402
-from datagen.viewspace import build_view_space  # noqa: E402
+from datagen.pipeline.cases import long_tail_cases  # noqa: E402
+from datagen.pipeline.coverage import coverage_table, filter_to_ground_truth  # noqa: E402
+from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
+from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
+from datagen.pipeline.random_streams import Purpose, stream  # noqa: E402
+from datagen.pipeline.refine import RefineRequest, make_refiner, refined_keys  # noqa: E402
+from datagen.pipeline.scanning import scan_task  # noqa: E402
+from datagen.pipeline.setcover import CoverResult, TaskCover  # noqa: E402
+from datagen.pipeline.viewspace import build_view_space  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

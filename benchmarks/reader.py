@@ -50,13 +50,13 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from torch.utils.data import DataLoader, default_collate  # noqa: E402
 
-from datagen.objects.objects_file import read_objects_file  # noqa: E402
-from datagen.objects.prepare import prepare_object  # noqa: E402
-from datagen.payload import task_payload  # noqa: E402
-from datagen.refine import make_refiner  # noqa: E402
-from datagen.task import run_task  # noqa: E402
-from datagen.threads import single_threaded_blas  # noqa: E402
-from datagen.viewspace import build_view_space  # noqa: E402
+from datagen.engine.shard_payload import task_payload  # noqa: E402
+from datagen.pipeline.objects.objects_file import read_objects_file  # noqa: E402
+from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
+from datagen.pipeline.refine import make_refiner  # noqa: E402
+from datagen.pipeline.task import run_task  # noqa: E402
+from datagen.pipeline.thread_limits import single_threaded_blas  # noqa: E402
+from datagen.pipeline.viewspace import build_view_space  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 from schemas.dataset import DATASET_FILE, DatasetInfo  # noqa: E402
 from storage.dataset_info import init_dataset  # noqa: E402

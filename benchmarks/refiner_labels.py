@@ -32,12 +32,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from datagen.errors import DatagenError  # noqa: E402
-from datagen.objects.objects_file import read_objects_file  # noqa: E402
-from datagen.objects.prepare import prepare_object  # noqa: E402
-from datagen.refine import make_refiner  # noqa: E402
-from datagen.task import run_task  # noqa: E402
-from datagen.threads import fixed_torch_threads, single_threaded_blas  # noqa: E402
-from datagen.viewspace import build_view_space  # noqa: E402
+from datagen.pipeline.objects.objects_file import read_objects_file  # noqa: E402
+from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
+from datagen.pipeline.refine import make_refiner  # noqa: E402
+from datagen.pipeline.task import run_task  # noqa: E402
+from datagen.pipeline.thread_limits import fixed_torch_threads, single_threaded_blas  # noqa: E402
+from datagen.pipeline.viewspace import build_view_space  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 
 

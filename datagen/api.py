@@ -6,9 +6,9 @@ from pathlib import Path
 from typing import Any
 
 from datagen.config_io import load_config
-from datagen.engine import ProgressCallback, run_job
+from datagen.engine.driver import ProgressCallback, run_job
+from datagen.engine.job_plan import plan_job
 from datagen.errors import DatagenError
-from datagen.planning import plan_job
 from datagen.settings import RunSettings
 from jobs.ledger import Job, Ledger
 from schemas.config import GenerationConfig

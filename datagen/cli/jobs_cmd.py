@@ -14,7 +14,7 @@ from rich.table import Table
 from rich.text import Text
 
 from datagen.cli.common import console, error_console, user_errors
-from datagen.engine import JobProgress, ProgressCallback
+from datagen.engine.driver import JobProgress, ProgressCallback
 from datagen.errors import DatagenError
 from datagen.settings import RunSettings, default_home
 from jobs.ledger import DONE, FINAL_STATES, Job, LedgerError
@@ -218,7 +218,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """A long-running driver: takes queued jobs in order and runs them (several may share a ledger)."""
         from datagen.api import ledger_for
-        from datagen.engine import run_job
+        from datagen.engine.driver import run_job
 
         with _job_errors():
             settings = _settings(home, None, address, workers, refiner_gpus)

@@ -18,7 +18,7 @@ from datagen.cli.common import console, user_errors
 from datagen.cli.shards import shards_app
 from datagen.config_io import config_to_toml, load_config
 from datagen.errors import DatagenError
-from datagen.threads import single_threaded_blas
+from datagen.pipeline.thread_limits import single_threaded_blas
 
 app = typer.Typer(
     help="Exact, reproducible training data for one-shot view planning.",
@@ -51,7 +51,7 @@ def config_show(config: ConfigOption = None) -> None:
 @objects_app.command("builtins")
 def objects_builtins() -> None:
     """List the built-in shapes (use them as builtin:NAME in an objects file)."""
-    from datagen.objects import builtins
+    from datagen.shapes import builtins
 
     table = Table("name", "family", "description", title="built-in shapes")
     for name in builtins.builtin_names():
@@ -66,8 +66,8 @@ def objects_show(
     config: ConfigOption = None,
 ) -> None:
     """Resolve and prepare every line of an objects file; show each object or the line's error."""
-    from datagen.objects.objects_file import ObjectLineError, read_objects_file
-    from datagen.objects.prepare import prepare_object
+    from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
+    from datagen.pipeline.objects.prepare import prepare_object
 
     with user_errors(), single_threaded_blas():
         resolved = load_config(config)
@@ -108,7 +108,7 @@ def objects_synth(
     seed: Annotated[int, typer.Option("--seed", "-s", min=0, help="Same seed, same bytes.")] = 0,
 ) -> None:
     """Write N seeded, varied, watertight meshes and an objects file listing them."""
-    from datagen.objects.synth import synthesize
+    from datagen.shapes.synthetic import synthesize
 
     with user_errors():
         listing = synthesize(count, seed, out)
@@ -128,10 +128,10 @@ def scan(
     The most complete end-to-end run until ``datagen submit`` exists: it exercises steps 0-3 of
     the pipeline on real objects and reports what each view sees.
     """
-    from datagen.objects.objects_file import read_objects_file
-    from datagen.objects.prepare import prepare_object
-    from datagen.scanning import scan_task
-    from datagen.viewspace import build_view_space
+    from datagen.pipeline.objects.objects_file import read_objects_file
+    from datagen.pipeline.objects.prepare import prepare_object
+    from datagen.pipeline.scanning import scan_task
+    from datagen.pipeline.viewspace import build_view_space
 
     with user_errors(), single_threaded_blas():
         resolved = load_config(config)

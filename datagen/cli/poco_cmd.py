@@ -40,7 +40,7 @@ def poco_train(
     max_minutes: Annotated[float | None, typer.Option(help="Stop (with a checkpoint) after this wall time.")] = None,
 ) -> None:
     """Train a POCO network on the project's own shapes (built-ins + synthetic), resumable."""
-    from datagen.refine.poco.training import TrainOptions, train
+    from datagen.training.poco_train import TrainOptions, train
 
     with user_errors():
         options = TrainOptions(
@@ -94,12 +94,12 @@ def poco_eval(
 
     from datagen.config_io import load_config
     from datagen.errors import ConfigError
-    from datagen.objects.objects_file import ObjectLineError, read_objects_file
-    from datagen.refine.base import Refiner
-    from datagen.refine.carve import CarveRefiner
-    from datagen.refine.poco.checkpoint import load_checkpoint
-    from datagen.refine.poco.evaluate import evaluate_object, mean_metrics
-    from datagen.refine.poco.refiner import BUILTIN_WEIGHTS, PocoRefiner, weights_sha256
+    from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
+    from datagen.pipeline.refine.base import Refiner
+    from datagen.pipeline.refine.carve import CarveRefiner
+    from datagen.pipeline.refine.poco.checkpoint import load_checkpoint
+    from datagen.pipeline.refine.poco.refiner import BUILTIN_WEIGHTS, PocoRefiner, weights_sha256
+    from datagen.training.poco_eval import evaluate_object, mean_metrics
 
     chosen_views = _parse_views(views)
     with user_errors():
@@ -115,7 +115,7 @@ def poco_eval(
             "carve": CarveRefiner(resolved),
         }
         if poisson:
-            from datagen.refine.poisson import PoissonRefiner
+            from datagen.pipeline.refine.poisson import PoissonRefiner
 
             refiners["poisson"] = PoissonRefiner(resolved)
         listing = read_objects_file(objects)
@@ -183,8 +183,8 @@ def poco_export(
     import torch
     from rich.table import Table
 
-    from datagen.refine.poco.checkpoint import load_checkpoint
-    from datagen.refine.poco.training import (
+    from datagen.pipeline.refine.poco.checkpoint import load_checkpoint
+    from datagen.training.poco_train import (
         evaluate_pool,
         export_weights,
         load_pool,

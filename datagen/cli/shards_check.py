@@ -113,7 +113,7 @@ def relabel(
     out: Annotated[str, typer.Option("--out", help="Where the new dataset goes (must not hold a dataset).")],
 ) -> None:
     """A new dataset: the same samples labelled for another alpha from the stored sets (no re-imaging)."""
-    from datagen.inspection.relabel import RelabelProgress, relabel_dataset
+    from datagen.engine.relabel import RelabelProgress, relabel_dataset
 
     with storage_errors():
         with _progress() as bar:

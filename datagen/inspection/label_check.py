@@ -3,7 +3,7 @@
 `storage.validate` only asks whether a label covers its U. Here every checked label must also be a
 minimum cover and, among the minimum covers, the lexicographically smallest sorted tuple of views;
 the index must hold the same label as the shard. The coverage is rebuilt from the shard's stored P_i
-at the dataset's alpha, and the expected label is found by other means than `datagen.setcover`
+at the dataset's alpha, and the expected label is found by other means than `datagen.pipeline.setcover`
 (greedy and LP bounds, a MIP, a pruned depth-first search), so a bug there cannot hide here:
 
 - views forced by single-view rows are in every cover and are taken first;
@@ -32,7 +32,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import ValidationError
 
-from datagen import setcover
+from datagen.pipeline import setcover
 from schemas.index import CommitRecord
 from schemas.shard import LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from storage.dataset_info import read_info
@@ -194,8 +194,8 @@ def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tup
 
 
 def _sample_id(task_id: str, case: int) -> str:
-    """The id of a sample the index does not name (imported late: `datagen.task` loads the pipeline)."""
-    from datagen.task import sample_id
+    """The id of a sample the index does not name (imported late: `datagen.pipeline.task` loads the pipeline)."""
+    from datagen.pipeline.task import sample_id
 
     return sample_id(task_id, case)
 

@@ -1,0 +1,244 @@
+"""Relabel a dataset for another alpha from its stored sets (PIPELINE.md section 8).
+
+A shard keeps each view's P_i, so P_full, the coverage and every label of its stored cases can be
+computed again without imaging or refining anything: the samples' points and observed sets are
+carried over unchanged and only the labels (and their solver records) are new. The result is a new
+dataset with its own config (the source's, alpha changed) and config hash, written task by task
+through the same commit protocol as the engine, with the source's failure records carried over.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import platform
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+from pydantic import ValidationError
+
+from datagen.engine.shard_payload import task_payload
+from datagen.errors import ConfigError, OutputError
+from datagen.pipeline.keys import pack_keys
+from datagen.pipeline.task import Sample, TaskResult, TaskSets, relabel, sample_id
+from schemas.config import GenerationConfig
+from schemas.dataset import DATASET_FILE, DatasetInfo
+from schemas.index import CommitRecord
+from schemas.shard import GT_KEYS, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
+from schemas.version import SCHEMA_VERSION
+from storage.dataset_info import init_dataset, read_info
+from storage.location import Location, StorageError, open_location
+from storage.reader import finalise
+from storage.shards import ShardReader
+from storage.writer import COMMITS, committed_tasks, read_failures, write_failure, write_task
+
+TASK_METADATA = ("refiner", "weights_id", "device", "seed", "schema_version")
+"""Per-task metadata carried over from the source shard (the config hash is the new one)."""
+
+
+@dataclass(frozen=True)
+class RelabelProgress:
+    tasks_done: int
+    tasks_total: int
+    samples: int
+    """Samples written so far."""
+    task_id: str
+    """The task just written."""
+
+
+@dataclass(frozen=True)
+class RelabelSummary:
+    source: str
+    out: str
+    source_alpha: int
+    alpha: int
+    source_config_hash: str
+    config_hash: str
+    tasks: int
+    samples: int
+    dropped_empty: int
+    """Samples whose U became empty under ``empty_labels = 'drop'``."""
+    failed_cases: int
+    """Cases whose label could not be proven optimal (not written; named in the shard attributes)."""
+    failures: int
+    """Failure records carried over from the source."""
+    seconds: float
+
+    @property
+    def labels_per_second(self) -> float:
+        return self.samples / self.seconds if self.seconds > 0 else float("inf")
+
+
+def relabel_dataset(
+    url: str,
+    alpha: int,
+    out_url: str,
+    storage_options: dict[str, Any] | None = None,
+    progress: Callable[[RelabelProgress], None] | None = None,
+) -> RelabelSummary:
+    """Write a new dataset at ``out_url`` labelling every committed task of ``url`` for ``alpha``."""
+    started = time.perf_counter()
+    source = open_location(url, storage_options)
+    info = read_info(source)
+    config = _with_alpha(info.config, alpha)
+    target = open_location(out_url, storage_options)
+    _refuse_existing(target)
+    new_info = DatasetInfo(
+        schema_version=SCHEMA_VERSION,
+        config=config,
+        config_hash=_config_hash(config),
+        view_positions=info.view_positions,
+        versions=_versions(),
+        created=datetime.now(UTC).isoformat(timespec="seconds"),
+    )
+    init_dataset(target, new_info)
+    failures = read_failures(source)
+    for failure in sorted(failures, key=lambda f: f.task_id):
+        write_failure(target, failure)
+    records = committed_tasks(source)
+    samples = dropped = failed = 0
+    for done, record in enumerate(records, start=1):
+        result = relabel_task(source, record, config, new_info.config_hash, info.config_hash)
+        write_task(target, task_payload(result, config), f"relabel-{uuid.uuid4().hex[:12]}")
+        samples += len(result.samples)
+        dropped += result.dropped_empty
+        failed += len(result.failures)
+        if progress:
+            progress(RelabelProgress(done, len(records), samples, record.task_id))
+    finalise(target)
+    return RelabelSummary(
+        source=url,
+        out=out_url,
+        source_alpha=info.config.alpha,
+        alpha=alpha,
+        source_config_hash=info.config_hash,
+        config_hash=new_info.config_hash,
+        tasks=len(records),
+        samples=samples,
+        dropped_empty=dropped,
+        failed_cases=failed,
+        failures=len(failures),
+        seconds=time.perf_counter() - started,
+    )
+
+
+def relabel_task(
+    source: Location, record: CommitRecord, config: GenerationConfig, config_hash: str, source_hash: str
+) -> TaskResult:
+    """One committed task of the source, its stored cases labelled for ``config.alpha``.
+
+    Only the cases the source stored can be relabelled: a case the source dropped (empty label) or
+    failed to label has no stored points.
+    """
+    started = time.perf_counter()
+    shard = ShardReader(source, record.shard)
+    attributes = shard.attributes
+    num_views = attributes.num_views
+    sets = TaskSets(
+        visible=tuple(_key_sets(shard, "visible", num_views)),
+        refined=tuple(_key_sets(shard, "refined", num_views)),
+        ground_truth=pack_keys(shard.array(GT_KEYS)),
+    )
+    masks = shard.array(MASKS)
+    cases = [int(c) for c in masks[:, VIEW_STATE_COLUMN]]
+    coverage, labels, failures = relabel(sets, cases, config)
+    points = _key_sets(shard, "points", len(cases))
+    observed = _key_sets(shard, "observed", len(cases))
+    samples: list[Sample] = []
+    dropped = 0
+    for row, case in enumerate(cases):
+        cover = labels.get(case)
+        if cover is None:
+            continue
+        empty = cover.status == "empty"
+        if empty and config.empty_labels == "drop":
+            dropped += 1
+            continue
+        samples.append(
+            Sample(
+                sample_id=sample_id(attributes.task_id, case),
+                case=case,
+                label=cover.label,
+                points=points[row],
+                observed=observed[row],
+                full_size=len(coverage),
+                universe_size=cover.rows_before,
+                cover=cover,
+                empty_label=empty,
+            )
+        )
+    source_meta = attributes.metadata
+    metadata: dict[str, object] = {name: source_meta[name] for name in TASK_METADATA if name in source_meta}
+    metadata["config_hash"] = config_hash
+    metadata["relabelled_from"] = {
+        "config_hash": source_hash,
+        "attempt_id": attributes.attempt_id,
+        "cases": source_meta.get("cases"),
+    }
+    return TaskResult(
+        task_id=attributes.task_id,
+        object_id=attributes.object_id,
+        object_name=attributes.object_name,
+        rotation=attributes.rotation,
+        sets=sets,
+        cases=tuple(cases),
+        samples=tuple(samples),
+        failures=tuple(failures),
+        dropped_empty=dropped,
+        metadata=metadata,
+        seconds={"label": time.perf_counter() - started},
+    )
+
+
+def _key_sets(shard: ShardReader, name: str, count: int) -> list[npt.NDArray[np.int64]]:
+    """A stored per-sample or per-view key set family as packed keys."""
+    keys, offsets = shard.array(keys_array(name)), shard.array(offsets_array(name))
+    if offsets.shape != (count + 1,):
+        raise StorageError(
+            f"{shard.relative}: {offsets_array(name)} has {offsets.shape[0]} entries, expected {count + 1}; "
+            "run 'datagen shards validate' on the source"
+        )
+    packed = pack_keys(keys)
+    return [packed[offsets[i] : offsets[i + 1]] for i in range(count)]
+
+
+def _with_alpha(config: GenerationConfig, alpha: int) -> GenerationConfig:
+    if not 1 <= alpha <= config.num_views:
+        raise ConfigError(
+            f"--alpha {alpha} is outside 1..{config.num_views} (the dataset has {config.num_views} views)"
+        )
+    try:
+        return GenerationConfig.model_validate({**config.model_dump(), "alpha": alpha})
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        raise ConfigError(f"--alpha {alpha}: {first['msg']}") from None
+
+
+def _config_hash(config: GenerationConfig) -> str:
+    try:
+        return config.config_hash()
+    except FileNotFoundError as exc:
+        raise ConfigError(
+            f"the source config names {exc.filename}, which is not here; it is hashed into the new config"
+        ) from None
+
+
+def _refuse_existing(target: Location) -> None:
+    if target.exists(DATASET_FILE) or target.listdir(COMMITS):
+        raise OutputError(f"{target.url}: already holds a dataset; relabel writes a new one, give an empty --out")
+
+
+def _versions() -> dict[str, str]:
+    """The software that writes the new labels."""
+    versions = {"python": platform.python_version(), "numpy": np.__version__}
+    for package in ("datagen", "highspy", "zarr", "pyarrow"):
+        try:
+            versions[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return versions

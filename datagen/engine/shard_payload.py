@@ -1,0 +1,91 @@
+"""Turn a `TaskResult` (pipeline) into a `ShardPayload` (storage): the one place both meet."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from datagen.pipeline.keys import keys_to_int16, unpack_keys
+from datagen.pipeline.task import TaskResult
+from schemas.config import GenerationConfig
+from schemas.shard import GT_KEYS, MASK_DTYPE, OFFSET_DTYPE, ShardAttributes, keys_array, offsets_array
+from schemas.version import SCHEMA_VERSION
+from storage.writer import ShardPayload
+
+
+def task_payload(result: TaskResult, config: GenerationConfig) -> ShardPayload:
+    samples = result.samples
+    arrays: dict[str, npt.NDArray[Any]] = {
+        "masks": np.array([[s.case, s.label] for s in samples], dtype=MASK_DTYPE).reshape(-1, 2),
+        GT_KEYS: keys_to_int16(unpack_keys(result.sets.ground_truth)),
+    }
+    for name, sets in (
+        ("points", [s.points for s in samples]),
+        ("observed", [s.observed for s in samples]),
+        ("visible", list(result.sets.visible)),
+        ("refined", list(result.sets.refined)),
+    ):
+        keys, offsets = _flatten(sets)
+        arrays[keys_array(name)] = keys
+        arrays[offsets_array(name)] = offsets
+    meta = result.metadata
+    attributes = ShardAttributes(
+        schema_version=SCHEMA_VERSION,
+        task_id=result.task_id,
+        object_id=result.object_id,
+        object_name=result.object_name,
+        rotation=result.rotation,
+        attempt_id="",
+        num_views=config.num_views,
+        num_samples=len(samples),
+        voxel_size=config.voxel_size,
+        grid_offset=config.grid_offset,
+        config_hash=str(meta["config_hash"]),
+        metadata={
+            **meta,
+            "cases": len(result.cases),
+            "dropped_empty": result.dropped_empty,
+            "failed_cases": [{"case": f.case, "message": f.message} for f in result.failures],
+            "seconds": result.seconds,
+        },
+    )
+    rows: dict[str, list[Any]] = {
+        "sample_id": [s.sample_id for s in samples],
+        "task_id": [result.task_id] * len(samples),
+        "object_id": [result.object_id] * len(samples),
+        "object_name": [result.object_name] * len(samples),
+        "rotation": [result.rotation] * len(samples),
+        "view_state": [s.case for s in samples],
+        "label": [s.label for s in samples],
+        "case_size": [s.case.bit_count() for s in samples],
+        "label_size": [s.label.bit_count() for s in samples],
+        "num_points": [int(s.points.size) for s in samples],
+        "num_observed": [int(s.observed.size) for s in samples],
+        "full_size": [s.full_size for s in samples],
+        "universe_size": [s.universe_size for s in samples],
+        "empty_label": [s.empty_label for s in samples],
+        "solver_status": [s.cover.status for s in samples],
+        "solver_objective": [s.cover.objective for s in samples],
+        "solver_proof": [s.cover.proof for s in samples],
+        "solver_seconds": [s.cover.seconds for s in samples],
+        "rows_before": [s.cover.rows_before for s in samples],
+        "rows_after": [s.cover.rows_after for s in samples],
+        "refiner": [str(meta["refiner"])] * len(samples),
+        "weights_id": [str(meta["weights_id"])] * len(samples),
+        "device": [str(meta["device"])] * len(samples),
+        "seed": [int(str(meta["seed"]))] * len(samples),
+        "config_hash": [str(meta["config_hash"])] * len(samples),
+        "schema_version": [SCHEMA_VERSION] * len(samples),
+    }
+    return ShardPayload(attributes=attributes, arrays=arrays, index_rows=rows)
+
+
+def _flatten(sets: Sequence[npt.NDArray[np.int64]]) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.int64]]:
+    """Packed key sets -> one (K, 3) int16 array and N + 1 offsets."""
+    offsets = np.zeros(len(sets) + 1, dtype=OFFSET_DTYPE)
+    offsets[1:] = np.cumsum([len(s) for s in sets])
+    flat = np.concatenate(list(sets)) if sets else np.empty(0, dtype=np.int64)
+    return keys_to_int16(unpack_keys(flat)).reshape(-1, 3), offsets

@@ -1,0 +1,104 @@
+"""What one worker does for one task: prepare, compute, write the shard, report. Ray-free.
+
+The engine calls `execute_task` inside a Ray task; tests call it directly. Bad input (a missing or
+corrupt mesh) is an outcome, not an exception: the failure is recorded in the dataset and reported
+so the job goes on. A task already committed (by an earlier attempt or another driver) is not
+recomputed.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+import uuid
+from dataclasses import dataclass
+from typing import Any
+
+from datagen.engine.job_plan import object_spec
+from datagen.engine.shard_payload import task_payload
+from datagen.errors import DatagenError
+from datagen.pipeline.objects.prepare import PreparedObject, prepare_object
+from datagen.pipeline.refine import make_refiner
+from datagen.pipeline.task import run_task
+from datagen.pipeline.thread_limits import fixed_torch_threads, single_threaded_blas
+from datagen.pipeline.viewspace import ViewSpace, build_view_space
+from schemas.config import GenerationConfig
+from schemas.index import FailureRecord
+from schemas.jobs import ObjectRef, TaskSpec
+from schemas.version import SCHEMA_VERSION
+from storage.location import open_location
+from storage.writer import read_commit, write_failure, write_task
+
+
+@dataclass(frozen=True)
+class TaskOutcome:
+    task_id: str
+    ok: bool
+    samples: int
+    attempt_id: str
+    """The storage attempt readers follow (this execution's, or an earlier committed one)."""
+    message: str = ""
+    reused: bool = False
+    """True when the task was already committed and nothing was computed."""
+    seconds: float = 0.0
+
+
+def execute_task(
+    task: dict[str, Any],
+    config: dict[str, Any],
+    out: str,
+    attempt_id: str,
+    storage_options: dict[str, Any] | None = None,
+    device: str = "cpu",
+) -> TaskOutcome:
+    """Run one task end to end and commit its shard under a unique execution id.
+
+    ``device`` is where a learned refiner runs ('cuda' when the engine reserved a GPU share).
+    """
+    started = time.perf_counter()
+    spec = TaskSpec.model_validate(task)
+    generation = _config(_freeze(config))
+    location = open_location(out, storage_options)
+    committed = read_commit(location, spec.task_id)
+    if committed is not None:
+        return TaskOutcome(spec.task_id, True, committed.num_samples, committed.attempt_id, reused=True)
+    execution = f"{attempt_id}-{uuid.uuid4().hex[:8]}"
+    try:
+        refiner = make_refiner(generation, device)  # first: it may import torch, which the bound below fixes
+        with single_threaded_blas(), fixed_torch_threads():
+            prepared = _prepared(spec.object.model_dump_json(), _freeze(config))
+            result = run_task(prepared, spec.rotation, generation, _view_space(_freeze(config)), refiner)
+    except DatagenError as exc:
+        write_failure(
+            location,
+            FailureRecord(
+                schema_version=SCHEMA_VERSION,
+                task_id=spec.task_id,
+                object_name=spec.object.name,
+                origin=spec.object.origin,
+                message=str(exc),
+            ),
+        )
+        return TaskOutcome(spec.task_id, False, 0, execution, message=str(exc), seconds=time.perf_counter() - started)
+    record = write_task(location, task_payload(result, generation), execution)
+    return TaskOutcome(spec.task_id, True, record.num_samples, record.attempt_id, seconds=time.perf_counter() - started)
+
+
+def _freeze(config: dict[str, Any]) -> str:
+    return GenerationConfig.model_validate(config).model_dump_json()
+
+
+@functools.lru_cache(maxsize=4)
+def _config(frozen: str) -> GenerationConfig:
+    return GenerationConfig.model_validate_json(frozen)
+
+
+@functools.lru_cache(maxsize=4)
+def _view_space(frozen: str) -> ViewSpace:
+    return build_view_space(_config(frozen).view_space)
+
+
+@functools.lru_cache(maxsize=8)
+def _prepared(object_json: str, frozen: str) -> PreparedObject:
+    """Prepared objects are reused across the rotations a worker runs (same object, same config)."""
+    return prepare_object(object_spec(ObjectRef.model_validate_json(object_json)), _config(frozen))

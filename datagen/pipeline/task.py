@@ -1,0 +1,221 @@
+"""One task in memory: (object, rotation) -> its labelled samples (PIPELINE.md sections 1-8).
+
+`run_task` composes the pure steps: scan (P_gt and the n observations), refine every single view,
+filter to P_full and coverage masks, draw the long-tail cases from the visibility sets, refine
+every multi-view case, and label each case with its exact minimum cover. It also returns the
+per-task sets (V_i, P_i, P_gt) that `relabel` needs to label the same cases for another alpha
+without re-imaging or re-refining.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from datagen.pipeline.cases import long_tail_cases
+from datagen.pipeline.coverage import Coverage, coverage_table, filter_to_ground_truth
+from datagen.pipeline.imaging import Observation
+from datagen.pipeline.keys import key_centres, unpack_keys
+from datagen.pipeline.objects.prepare import PreparedObject
+from datagen.pipeline.random_streams import Purpose, stream
+from datagen.pipeline.refine.base import Refiner, RefineRequest, refined_keys
+from datagen.pipeline.scanning import scan_task
+from datagen.pipeline.setcover import CoverResult, LabelError, TaskCover
+from datagen.pipeline.viewspace import ViewSpace
+from schemas.config import GenerationConfig
+from schemas.version import SCHEMA_VERSION
+
+PackedKeys = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class TaskSets:
+    """What a task keeps so that a new alpha can be labelled from storage alone."""
+
+    visible: tuple[PackedKeys, ...]
+    """V_i: keys each view saw."""
+    refined: tuple[PackedKeys, ...]
+    """P_i = P(O_i) intersected with P_gt."""
+    ground_truth: PackedKeys
+    """P_gt."""
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One labelled case of one task (a row of a shard)."""
+
+    sample_id: str
+    case: int
+    """Mask of the input views S (view_state)."""
+    label: int
+    """Mask of the label views L."""
+    points: PackedKeys
+    """P(O_S): the refined cloud, the network input."""
+    observed: PackedKeys
+    """keys(O_S): what the input views saw."""
+    full_size: int
+    universe_size: int
+    cover: CoverResult
+    empty_label: bool
+
+    def point_centres(self, config: GenerationConfig) -> npt.NDArray[np.float32]:
+        return key_centres(unpack_keys(self.points), config.voxel_size, config.grid_offset).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class CaseFailure:
+    case: int
+    message: str
+
+
+@dataclass(frozen=True)
+class TaskResult:
+    task_id: str
+    object_id: str
+    object_name: str
+    rotation: int
+    sets: TaskSets
+    cases: tuple[int, ...]
+    """Every drawn case, ordered by (size, mask), including dropped and failed ones."""
+    samples: tuple[Sample, ...]
+    failures: tuple[CaseFailure, ...]
+    dropped_empty: int
+    metadata: dict[str, object]
+    """Per-sample metadata shared by every sample of the task (PIPELINE.md section 8)."""
+    seconds: dict[str, float] = field(default_factory=dict)
+
+
+def sample_id(task_id: str, case: int) -> str:
+    return f"{task_id}-{case:016x}"
+
+
+def run_task(
+    prepared: PreparedObject,
+    rotation: int,
+    config: GenerationConfig,
+    view_space: ViewSpace,
+    refiner: Refiner,
+    threads: int = 1,
+) -> TaskResult:
+    """Every sample of task (object, rotation), in memory."""
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+    spec = prepared.spec
+    task_id = spec.task_id(rotation)
+    scan = scan_task(prepared, rotation, config, view_space)
+    timings["scan"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    singles = list(scan.observations)
+    single_refined = _refine(refiner, singles, config, spec.object_id, rotation)
+    refined_in_gt = filter_to_ground_truth(single_refined, scan.ground_truth.keys)
+    sets = TaskSets(
+        visible=tuple(o.keys for o in singles),
+        refined=tuple(refined_in_gt),
+        ground_truth=scan.ground_truth.keys,
+    )
+    cases = long_tail_cases(sets.visible, stream(config.seed, spec.object_id, rotation, Purpose.CASES))
+    multi = [c for c in cases if c.bit_count() > 1]
+    combined = [Observation.combine([singles[v] for v in _views(c)]) for c in multi]
+    multi_refined = _refine(refiner, combined, config, spec.object_id, rotation)
+    timings["refine"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    inputs: dict[int, tuple[PackedKeys, PackedKeys]] = {}
+    for view, observation in enumerate(singles):
+        inputs[1 << view] = (single_refined[view], observation.keys)
+    for case, observation, points in zip(multi, combined, multi_refined, strict=True):
+        inputs[case] = (points, observation.keys)
+    coverage = coverage_table(sets.refined, config.alpha)
+    labels, failures = _label_cases(coverage, cases, config, threads)
+    samples, dropped = [], 0
+    for case in cases:
+        if case not in labels:
+            continue
+        cover = labels[case]
+        empty = cover.status == "empty"
+        if empty and config.empty_labels == "drop":
+            dropped += 1
+            continue
+        points, observed = inputs[case]
+        samples.append(
+            Sample(
+                sample_id=sample_id(task_id, case),
+                case=case,
+                label=cover.label,
+                points=points,
+                observed=observed,
+                full_size=len(coverage),
+                universe_size=cover.rows_before,
+                cover=cover,
+                empty_label=empty,
+            )
+        )
+    timings["label"] = time.perf_counter() - clock
+    return TaskResult(
+        task_id=task_id,
+        object_id=spec.object_id,
+        object_name=spec.name,
+        rotation=rotation,
+        sets=sets,
+        cases=tuple(cases),
+        samples=tuple(samples),
+        failures=tuple(failures),
+        dropped_empty=dropped,
+        metadata=task_metadata(config, refiner),
+        seconds=timings,
+    )
+
+
+def relabel(
+    sets: TaskSets, cases: Sequence[int], config: GenerationConfig, threads: int = 1
+) -> tuple[Coverage, dict[int, CoverResult], list[CaseFailure]]:
+    """P_full, coverage and labels for ``config.alpha`` from the stored P_i alone."""
+    coverage = coverage_table(sets.refined, config.alpha)
+    labels, failures = _label_cases(coverage, cases, config, threads)
+    return coverage, labels, failures
+
+
+def task_metadata(config: GenerationConfig, refiner: Refiner) -> dict[str, object]:
+    return {
+        "refiner": refiner.name,
+        "weights_id": refiner.weights_id,
+        "device": str(getattr(refiner, "device", "cpu")),
+        "seed": config.seed,
+        "config_hash": config.config_hash(),
+        "schema_version": SCHEMA_VERSION,
+    }
+
+
+def _label_cases(
+    coverage: Coverage, cases: Sequence[int], config: GenerationConfig, threads: int
+) -> tuple[dict[int, CoverResult], list[CaseFailure]]:
+    solver = TaskCover(coverage.masks, config.num_views, config.solver_time_limit)
+    labels: dict[int, CoverResult] = {}
+    failures: list[CaseFailure] = []
+    for case in cases:
+        try:
+            labels[case] = solver.label(case, threads)
+        except LabelError as exc:
+            failures.append(CaseFailure(case=case, message=str(exc)))
+    return labels, failures
+
+
+def _refine(
+    refiner: Refiner,
+    observations: Sequence[Observation],
+    config: GenerationConfig,
+    object_id: str,
+    rotation: int,
+) -> list[PackedKeys]:
+    requests = [RefineRequest(o, config.seed, object_id, rotation) for o in observations]
+    refinements = refiner.refine(requests)
+    return [refined_keys(o, r) for o, r in zip(observations, refinements, strict=True)]
+
+
+def _views(case: int) -> list[int]:
+    return [v for v in range(case.bit_length()) if case >> v & 1]

@@ -1,0 +1,1 @@
+"""Training and measuring the POCO refiner's weights (never loaded by a worker that only refines)."""

@@ -1,0 +1,558 @@
+"""``datagen shards validate`` and ``datagen shards relabel`` through the CLI, on a dataset the engine
+wrote (local, and a copy in fsspec's memory filesystem), plus the label checker's own solver against
+the brute-force oracle of tests/support/setcover_oracle.py.
+
+Every corruption is made on a fresh copy of the shared dataset, never on the dataset itself.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import shutil
+import uuid
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import zarr
+from click.testing import Result
+from support.engine import assert_same_samples
+from support.setcover_oracle import oracle_cover, oracle_minimal
+from support.shards import (
+    EngineDataset,
+    copy_to_memory,
+    engine_dataset,  # noqa: F401
+)
+from typer.testing import CliRunner
+
+from datagen.cli.main import app
+from datagen.inspection import label_check
+from datagen.inspection.label_check import TaskRows, expected_label, lexicographic_rank, undominated, views_text
+from datagen.pipeline.coverage import coverage_table
+from datagen.pipeline.keys import pack_keys
+from datagen.pipeline.task import sample_id
+from schemas.dataset import DatasetInfo
+from schemas.index import CommitRecord
+from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
+from storage import committed_tasks, open_dataset, open_location, read_failures
+from storage.shards import KEY_CHUNK_ROWS, ShardReader
+from storage.validate import SAMPLED_ROWS_PER_SHARD
+from storage.writer import commit_path, fragment_path, shard_path
+
+runner = CliRunner()
+WHERE = ["local", "memory"]
+
+
+def shards(*args: str) -> Result:
+    return runner.invoke(app, ["shards", *args])
+
+
+def url_of(dataset: EngineDataset, where: str) -> str:
+    return dataset.url if where == "local" else dataset.memory_url
+
+
+def problem_lines(result: Result) -> list[str]:
+    """Every output line but the final summary line."""
+    return result.output.splitlines()[:-1]
+
+
+def lines_with(result: Result, *parts: str) -> list[str]:
+    return [line for line in result.output.splitlines() if all(part in line for part in parts)]
+
+
+def info_of(url: str) -> DatasetInfo:
+    location = open_location(url)
+    return DatasetInfo.model_validate_json(location.read_bytes("dataset.json"))
+
+
+# -- corrupting a copy -----------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def ds(engine_dataset: EngineDataset, tmp_path: Path) -> Path:  # noqa: F811
+    """A fresh local copy of the engine's dataset for one corruption."""
+    return Path(shutil.copytree(engine_dataset.url, tmp_path / "ds"))
+
+
+def first(root: Path) -> CommitRecord:
+    """The first committed task: its rows come first in the finalised index."""
+    return committed_tasks(open_location(str(root)))[0]
+
+
+def group(root: Path, record: CommitRecord) -> zarr.Group:
+    return zarr.open_group(str(root / record.shard), mode="r+")
+
+
+def validate_all(root: Path | str) -> Result:
+    result = shards("validate", str(root), "--all")
+    assert result.exit_code == 1, result.output
+    return result
+
+
+def rewrite_parquet(path: Path, column: str, values: list) -> None:  # type: ignore[type-arg]
+    table = pq.read_table(path)
+    field = table.schema.field(column)
+    table = table.set_column(table.schema.get_field_index(column), field, pa.array(values, field.type))
+    pq.write_table(table, path)
+
+
+def stored_masks(root: Path, record: CommitRecord) -> np.ndarray:
+    return np.asarray(group(root, record)[MASKS][...])
+
+
+def write_label(root: Path, record: CommitRecord, row: int, label: int, index: bool = True) -> None:
+    """Replace one stored label in the shard and, unless told otherwise, in the index (label and size)."""
+    g = group(root, record)
+    masks = np.asarray(g[MASKS][...])
+    masks[row, LABEL_COLUMN] = label
+    g[MASKS][...] = masks
+    if index:
+        table = pq.read_table(root / "index.parquet")
+        labels, sizes = table.column("label").to_pylist(), table.column("label_size").to_pylist()
+        labels[row], sizes[row] = label, label.bit_count()
+        rewrite_parquet(root / "index.parquet", "label", labels)
+        rewrite_parquet(root / "index.parquet", "label_size", sizes)
+
+
+def task_rows(root: Path | str, record: CommitRecord, alpha: int) -> TaskRows:
+    """The P_full masks rebuilt from the shard's stored P_i (the pipeline's coverage table)."""
+    shard = ShardReader(open_location(str(root)), record.shard)
+    keys, offsets = shard.array("refined_keys"), shard.array("refined_offsets")
+    per_view = [pack_keys(keys[offsets[v] : offsets[v + 1]]) for v in range(offsets.size - 1)]
+    return TaskRows.from_masks(coverage_table(per_view, alpha).masks)
+
+
+def maybe_in_memory(root: Path, where: str) -> str:
+    return str(root) if where == "local" else copy_to_memory(root)
+
+
+# -- a clean dataset -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("where", WHERE)
+def test_validate_all_passes_on_the_clean_dataset(engine_dataset: EngineDataset, where: str) -> None:  # noqa: F811
+    url = url_of(engine_dataset, where)
+    result = shards("validate", url, "--all")
+    assert result.exit_code == 0, result.output
+    samples = len(open_dataset(url))
+    assert result.output.splitlines() == [
+        f"ok: {engine_dataset.committed_tasks} tasks sound, {samples} labels checked with the solver (every label)"
+    ]
+
+
+@pytest.mark.parametrize("where", WHERE)
+def test_validate_samples_labels_per_shard(engine_dataset: EngineDataset, where: str) -> None:  # noqa: F811
+    url = url_of(engine_dataset, where)
+    result = shards("validate", url)
+    assert result.exit_code == 0, result.output
+    sizes = [r.num_samples for r in committed_tasks(open_location(url))]
+    checked = sum(min(size, SAMPLED_ROWS_PER_SHARD) for size in sizes)
+    assert f" {checked} labels checked with the solver (a sample of labels)" in result.output
+
+
+def test_validate_of_a_folder_that_is_no_dataset(tmp_path: Path) -> None:
+    result = shards("validate", str(tmp_path))
+    assert result.exit_code == 1
+    assert problem_lines(result) == [f"{tmp_path}: no dataset.json here; this is not a datagen dataset (check the URL)"]
+    assert result.output.splitlines()[-1].startswith("1 problem ")
+
+
+# -- storage's corruptions (tests/storage/test_validate.py's list), each seen through the CLI --------------------
+
+
+@pytest.mark.parametrize("name", ["points_keys", "observed_keys", "refined_keys"])
+def test_key_array_rewritten_shorter(ds: Path, name: str) -> None:
+    record = first(ds)
+    array = group(ds, record)[name]
+    assert isinstance(array, zarr.Array)
+    array.resize((array.shape[0] - 100, 3))
+    result = validate_all(ds)
+    assert lines_with(result, record.shard, name.replace("_keys", "_offsets"), "truncated")
+
+
+def test_gt_keys_with_the_wrong_shape(ds: Path) -> None:
+    record = first(ds)
+    g = group(ds, record)
+    gt = np.asarray(g["gt_keys"][...])
+    del g["gt_keys"]
+    g.create_array("gt_keys", data=gt[:, :2].copy())
+    assert lines_with(validate_all(ds), record.shard, "gt_keys", "expected (G, 3) int16")
+
+
+@pytest.mark.parametrize("name", ["points_keys", "observed_keys", "refined_keys", "visible_keys"])
+def test_chunk_file_truncated_on_disk(ds: Path, name: str) -> None:
+    record = first(ds)
+    assert group(ds, record)[name].shape[0] > KEY_CHUNK_ROWS  # stored as a zarr shard with a checksummed index
+    chunk = ds / record.shard / name / "c" / "0" / "0"
+    os.truncate(chunk, chunk.stat().st_size // 2)
+    result = validate_all(ds)
+    assert lines_with(result, record.shard, "truncated or corrupt")
+    assert not lines_with(result, "cannot check labels")  # storage's line says it; the label check stays quiet
+
+
+@pytest.mark.parametrize("damage", ["empty", "deleted"])
+def test_chunk_file_emptied_or_deleted(ds: Path, damage: str) -> None:
+    record = first(ds)
+    chunk = ds / record.shard / "points_keys" / "c" / "0" / "0"
+    if damage == "empty":
+        os.truncate(chunk, 0)
+    else:
+        chunk.unlink()
+    assert lines_with(validate_all(ds), record.shard, "points_keys")
+
+
+def test_shard_group_missing(ds: Path) -> None:
+    record = first(ds)
+    shutil.rmtree(ds / record.shard)
+    result = validate_all(ds)
+    assert lines_with(result, record.shard, "cannot open shard")
+    assert not lines_with(result, "cannot check labels")
+
+
+@pytest.mark.parametrize("name", ["points_offsets", "observed_offsets", "visible_offsets"])
+def test_non_monotone_offsets(ds: Path, name: str) -> None:
+    record = first(ds)
+    g = group(ds, record)
+    offsets = np.asarray(g[name][...])
+    offsets[2], offsets[3] = offsets[3], offsets[2]
+    assert offsets[3] < offsets[2]
+    g[name][...] = offsets
+    assert lines_with(validate_all(ds), f"{record.shard} row 2:", name, "not monotone")
+
+
+def test_offsets_not_ending_at_the_key_count(ds: Path) -> None:
+    record = first(ds)
+    g = group(ds, record)
+    offsets = np.asarray(g["points_offsets"][...])
+    offsets[-1] += 5
+    g["points_offsets"][...] = offsets
+    assert lines_with(validate_all(ds), record.shard, "points_offsets", "not monotone")
+
+
+def test_index_row_pointing_to_an_uncommitted_shard(ds: Path) -> None:
+    record = first(ds)
+    orphan = shard_path(record.task_id, "orphan")
+    shutil.copytree(ds / record.shard, ds / orphan)  # on disk, but no commit record names it
+    values = pq.read_table(ds / "index.parquet").column("shard").to_pylist()
+    rewrite_parquet(ds / "index.parquet", "shard", [orphan, *values[1:]])
+    assert lines_with(validate_all(ds), "index row 0:", orphan, "no commit record")
+
+
+def test_dangling_index_row(ds: Path) -> None:
+    values = pq.read_table(ds / "index.parquet").column("shard").to_pylist()
+    values[5] = "shards/nowhere/a1.zarr"
+    rewrite_parquet(ds / "index.parquet", "shard", values)
+    assert lines_with(validate_all(ds), "index row 5:", "shards/nowhere/a1.zarr")
+
+
+def test_index_row_out_of_range(ds: Path) -> None:
+    record = first(ds)
+    rows = pq.read_table(ds / "index.parquet").column("row").to_pylist()
+    rows[3] = record.num_samples + 7
+    rewrite_parquet(ds / "index.parquet", "row", rows)
+    assert lines_with(validate_all(ds), "index row 3:", f"row {record.num_samples + 7}", record.shard, "outside")
+
+
+def test_fragment_missing(ds: Path) -> None:
+    record = first(ds)
+    os.remove(ds / record.index_fragment)
+    assert lines_with(validate_all(ds), record.index_fragment, "cannot read index fragment")
+
+
+def test_duplicate_samples(ds: Path) -> None:
+    """A second commit whose shard and fragment copy the first task's: every sample id twice."""
+    record = first(ds)
+    copy_task = "0000000000000000-r9"
+    copy_shard, copy_fragment = shard_path(copy_task, "a1"), fragment_path(copy_task, "a1")
+    shutil.copytree(ds / record.shard, ds / copy_shard)
+    shutil.copy(ds / record.index_fragment, ds / copy_fragment)
+    rewrite_parquet(ds / copy_fragment, "shard", [copy_shard] * record.num_samples)
+    copied = record.model_copy(update={"task_id": copy_task, "shard": copy_shard, "index_fragment": copy_fragment})
+    (ds / commit_path(copy_task)).write_text(copied.model_dump_json())
+    duplicates = lines_with(validate_all(ds), "duplicate sample id")
+    assert len(duplicates) == record.num_samples
+    assert all(record.shard in line and copy_shard in line for line in duplicates)
+
+
+@pytest.mark.parametrize("relative", ["commit", "dataset.json"])
+def test_unparsable_record(ds: Path, relative: str) -> None:
+    path = commit_path(first(ds).task_id) if relative == "commit" else "dataset.json"
+    (ds / path).write_text('{"task_id": ')
+    result = shards("validate", str(ds), "--all")
+    assert result.exit_code == 1
+    assert lines_with(result, path)
+    if relative == "dataset.json":
+        assert len(problem_lines(result)) == 1  # said once, though both checkers need the file
+
+
+@pytest.mark.parametrize("column", ["label", "view_state"])
+def test_mask_bits_beyond_the_view_count(ds: Path, column: str) -> None:
+    record, row = first(ds), 4
+    masks = stored_masks(ds, record)
+    n = info_of(str(ds)).num_views
+    g = group(ds, record)
+    if column == "label":
+        masks[row, LABEL_COLUMN] |= np.uint64(1 << (n + 3))
+    else:
+        masks[row, VIEW_STATE_COLUMN] |= np.uint64(1 << 63)
+    g[MASKS][...] = masks
+    assert lines_with(validate_all(ds), f"{record.shard} row {row}:", f"beyond the {n} views")
+
+
+def test_label_overlapping_the_input(ds: Path) -> None:
+    record = first(ds)
+    masks = stored_masks(ds, record)
+    row = int(np.flatnonzero(masks[:, LABEL_COLUMN])[0])
+    case, label = int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN])
+    write_label(ds, record, row, label | (case & -case))
+    result = validate_all(ds)
+    assert lines_with(result, f"{record.shard} row {row}:", "label shares views with the input")
+    # The input view covers nothing of U, so the solver check also sees a label one view too large.
+    assert lines_with(result, sample_id(record.task_id, case), "is not minimum")
+
+
+def test_label_that_is_not_a_cover(ds: Path) -> None:
+    record = first(ds)
+    masks = stored_masks(ds, record)
+    row = int(np.flatnonzero(masks[:, LABEL_COLUMN])[-1])
+    label = int(masks[row, LABEL_COLUMN])
+    write_label(ds, record, row, label & (label - 1))  # without its lowest view
+    result = validate_all(ds)
+    assert len(problem_lines(result)) == 1, result.output  # storage's line; the label check's twin is dropped
+    assert lines_with(result, f"{record.shard} row {row}:", "keys of U uncovered")
+
+
+def test_commit_record_disagreeing_with_the_shard(ds: Path) -> None:
+    record = first(ds)
+    path = ds / commit_path(record.task_id)
+    data = json.loads(path.read_text())
+    data["num_samples"] += 1
+    path.write_text(json.dumps(data))
+    result = validate_all(ds)
+    assert lines_with(result, record.shard, "disagree with the commit record")
+    assert lines_with(result, record.index_fragment, "rows for")
+
+
+# -- labels that cover but break the rules (the solver's part) -------------------------------------------
+
+
+@pytest.mark.parametrize("where", WHERE)
+def test_label_that_covers_but_is_not_minimum(ds: Path, where: str) -> None:
+    record = first(ds)
+    masks = stored_masks(ds, record)
+    row = int(np.flatnonzero(masks[:, LABEL_COLUMN])[0])
+    case, label = int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN])
+    extra = next(v for v in range(info_of(str(ds)).num_views) if not (case | label) >> v & 1)
+    larger = label | 1 << extra
+    write_label(ds, record, row, larger)
+    result = validate_all(maybe_in_memory(ds, where))
+    k = label.bit_count()
+    assert problem_lines(result) == [
+        f"{sample_id(record.task_id, case)}: label {views_text(larger)} covers U but is not minimum "
+        f"(k={k + 1} > k*={k})"
+    ]
+
+
+def other_minimum_cover(root: Path, record: CommitRecord, alpha: int) -> tuple[int, int, int]:
+    """(row, stored label, another cover of the same size) for the first row whose U has several
+    minimum covers, found by enumerating every combination of views outside the case."""
+    rows = task_rows(root, record, alpha)
+    masks = stored_masks(root, record)
+    for row, (case, label) in enumerate(masks.tolist()):
+        universe = rows.distinct[(rows.distinct & np.uint64(case)) == 0]
+        k = int(label).bit_count()
+        if k == 0:
+            continue
+        outside = [v for v in range(info_of(str(root)).num_views) if not case >> v & 1]
+        for combination in itertools.combinations(outside, k):
+            other = sum(1 << v for v in combination)
+            if other != label and bool(((universe & np.uint64(other)) != 0).all()):
+                return row, int(label), other
+    raise AssertionError("no sample with two minimum covers in the dataset")
+
+
+@pytest.mark.parametrize("where", WHERE)
+def test_minimum_cover_that_is_not_the_lexicographic_choice(ds: Path, where: str) -> None:
+    record = first(ds)
+    alpha = info_of(str(ds)).config.alpha
+    row, label, other = other_minimum_cover(ds, record, alpha)
+    assert other > 0 and other.bit_count() == label.bit_count()
+    write_label(ds, record, row, other)
+    result = validate_all(maybe_in_memory(ds, where))
+    case = int(stored_masks(ds, record)[row, VIEW_STATE_COLUMN])
+    assert problem_lines(result) == [
+        f"{sample_id(record.task_id, case)}: label {views_text(other)} is minimum but not the lexicographic "
+        f"choice {views_text(label)}"
+    ]
+    # The HiGHS path of the checker (used when enumeration would be too long) reaches the same verdict.
+    highs = task_rows(ds, record, alpha)
+    highs.search_limit = 0
+    assert [kind for kind, _ in highs.judge(case, other)] == ["not-lexicographic"]
+    assert list(highs.judge(case, label)) == []
+
+
+def test_index_label_disagreeing_with_the_shard(ds: Path) -> None:
+    record = first(ds)
+    alpha = info_of(str(ds)).config.alpha
+    row, label, other = other_minimum_cover(ds, record, alpha)
+    table = pq.read_table(ds / "index.parquet")
+    labels = table.column("label").to_pylist()
+    labels[row] = other
+    rewrite_parquet(ds / "index.parquet", "label", labels)
+    result = validate_all(ds)
+    case = int(stored_masks(ds, record)[row, VIEW_STATE_COLUMN])
+    assert problem_lines(result) == [
+        f"{sample_id(record.task_id, case)}: the index says label {views_text(other)}, "
+        f"the shard holds {views_text(label)}"
+    ]
+
+
+# -- relabel ---------------------------------------------------------------------------------------------
+
+
+def new_url(where: str, tmp_path: Path, name: str) -> str:
+    return str(tmp_path / name) if where == "local" else f"memory://{name}-{uuid.uuid4().hex[:8]}"
+
+
+@pytest.mark.parametrize("where", WHERE)
+def test_relabel_to_the_same_alpha_reproduces_the_labels(
+    engine_dataset: EngineDataset,  # noqa: F811
+    tmp_path: Path,
+    where: str,
+) -> None:
+    source = url_of(engine_dataset, where)
+    out = new_url(where, tmp_path, "same")
+    alpha = info_of(source).config.alpha
+    result = shards("relabel", source, "--alpha", str(alpha), "--out", out)
+    assert result.exit_code == 0, result.output
+    # Every array of every shard (masks included) and every index column but the volatile ones.
+    assert assert_same_samples(source, out) == len(open_dataset(source))
+    assert info_of(out).config_hash == info_of(source).config_hash
+    assert f"config hash: {info_of(source).config_hash}" in result.output.splitlines()
+    assert sorted(f.task_id for f in read_failures(open_location(out))) == sorted(
+        f.task_id for f in read_failures(open_location(source))
+    )
+
+
+@pytest.mark.parametrize("where", WHERE)
+def test_relabel_to_another_alpha_validates(engine_dataset: EngineDataset, tmp_path: Path, where: str) -> None:  # noqa: F811
+    source = url_of(engine_dataset, where)
+    out = new_url(where, tmp_path, "alpha5")
+    result = shards("relabel", source, "--alpha", "5", "--out", out)
+    assert result.exit_code == 0, result.output
+    old, new = info_of(source), info_of(out)
+    assert new.config.alpha == 5 and new.config == old.config.model_copy(update={"alpha": 5})
+    assert new.config_hash != old.config_hash and new.config_hash == new.config.config_hash()
+    lines = result.output.splitlines()
+    assert f"config hash: {new.config_hash}" in lines and f"dataset: {out}" in lines
+    assert any("labels/s" in line for line in lines)
+    checked = shards("validate", out, "--all")
+    assert checked.exit_code == 0, checked.output
+    a, b = open_dataset(source), open_dataset(out)
+    assert sorted(a.index.column("sample_id").to_pylist()) == sorted(b.index.column("sample_id").to_pylist())
+    assert set(b.index.column("config_hash").to_pylist()) == {new.config_hash}
+    old_labels = dict(zip(a.index.column("sample_id").to_pylist(), a.index.column("label").to_pylist(), strict=True))
+    changed = [
+        s
+        for s, label in zip(b.index.column("sample_id").to_pylist(), b.index.column("label").to_pylist(), strict=True)
+        if old_labels[s] != label
+    ]
+    assert changed, "a lower alpha grows P_full, so some labels must change"
+    assert len(read_failures(open_location(out))) == engine_dataset.failed_tasks
+
+
+def test_relabel_into_an_existing_dataset_is_refused(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
+    target = Path(shutil.copytree(engine_dataset.url, tmp_path / "existing"))
+    before = (target / "dataset.json").read_bytes()
+    result = shards("relabel", engine_dataset.url, "--alpha", "5", "--out", str(target))
+    assert result.exit_code == 2
+    assert result.output.splitlines() == [
+        f"error: {target}: already holds a dataset; relabel writes a new one, give an empty --out"
+    ]
+    assert (target / "dataset.json").read_bytes() == before
+
+
+def test_relabel_with_an_alpha_beyond_the_views(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
+    result = shards("relabel", engine_dataset.url, "--alpha", "33", "--out", str(tmp_path / "out"))
+    assert result.exit_code == 2
+    assert result.output.splitlines() == ["error: --alpha 33 is outside 1..32 (the dataset has 32 views)"]
+    assert not (tmp_path / "out").exists()
+
+
+# -- the checker's solver against the oracle -------------------------------------------------------------
+
+
+def random_instances(count: int, seed: int) -> list[tuple[int, list[int]]]:
+    """(views, rows) with a few rows of a few views each: ties are common, covers of 1 to 6 views."""
+    rng = np.random.default_rng(seed)
+    instances = []
+    for _ in range(count):
+        n = int(rng.integers(4, 16))
+        rows = []
+        for _ in range(int(rng.integers(1, 25))):
+            width = int(rng.integers(1, 5))
+            rows.append(sum(1 << int(v) for v in rng.choice(n, size=width, replace=False)))
+        instances.append((n, rows))
+    return instances
+
+
+@pytest.mark.parametrize("search_limit", [2_000_000, 0], ids=["enumeration", "highs"])
+def test_expected_label_matches_the_oracle(search_limit: int) -> None:
+    for n, rows in random_instances(60 if search_limit else 25, seed=11):
+        truth = oracle_cover(rows)
+        reduced = undominated(np.array(rows, dtype=np.uint64))
+        # Any cover bounds the search; the union of all views is the loosest.
+        for bound in (truth.label, (1 << n) - 1):
+            expected = expected_label(reduced, bound, search_limit)
+            assert (expected.size, expected.label) == (truth.size, truth.label), (rows, bound)
+
+
+@pytest.mark.parametrize("dense", [True, False], ids=["dense-grid", "sorted"])
+def test_full_masks_match_the_pipelines_coverage_table(
+    engine_dataset: EngineDataset,  # noqa: F811
+    dense: bool,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    if not dense:
+        monkeypatch.setattr(label_check, "DENSE_CELLS", 0)
+    location = open_location(engine_dataset.url)
+    for record in committed_tasks(location):
+        shard = ShardReader(location, record.shard)
+        keys, offsets = shard.array("refined_keys"), shard.array("refined_offsets")
+        per_view = [pack_keys(keys[offsets[v] : offsets[v + 1]]) for v in range(offsets.size - 1)]
+        for alpha in (1, 5, 10, 32):
+            ours = np.sort(label_check.full_masks(keys, offsets, alpha))
+            assert ours.size > 0 or alpha == 32
+            np.testing.assert_array_equal(ours, np.sort(coverage_table(per_view, alpha).masks))
+
+
+def test_undominated_matches_the_oracle() -> None:
+    for _, rows in random_instances(40, seed=5):
+        assert undominated(np.array(rows, dtype=np.uint64)).tolist() == oracle_minimal(rows)
+
+
+def test_lexicographic_rank_is_the_position_in_combinations_order() -> None:
+    for m, k in ((6, 3), (9, 2), (7, 7), (5, 1)):
+        for position, combination in enumerate(itertools.combinations(range(m), k)):
+            assert lexicographic_rank(combination, m) == position
+
+
+def test_judge_names_each_broken_rule() -> None:
+    # Keys seen by views {0,1}, {1,2}, {2,3} (two keys) and {0,3}; nothing is in the case.
+    rows = TaskRows.from_masks([0b0011, 0b0110, 0b1100, 0b1100, 0b1001])
+    assert list(rows.judge(0, 0b0101)) == []  # {0, 2}: the smallest of the size-2 covers {0,2} and {1,3}
+    assert list(rows.judge(0, 0b1010)) == [
+        ("not-lexicographic", "label {1, 3} is minimum but not the lexicographic choice {0, 2}")
+    ]
+    assert list(rows.judge(0, 0b0111)) == [("not-minimum", "label {0, 1, 2} covers U but is not minimum (k=3 > k*=2)")]
+    assert list(rows.judge(0, 0b0001)) == [("uncovered", "label {0} does not cover U (3 of 5 keys uncovered)")]
+    # With view 0 as the input, U is the three keys without it: {2} covers them alone.
+    assert list(rows.judge(0b0001, 0b0100)) == []
+    assert list(rows.judge(0b1111, 0)) == []  # U empty: the empty label is right
+    assert list(rows.judge(0b1111, 0b10000)) == [("not-minimum", "label {4} covers U but is not minimum (k=1 > k*=0)")]

@@ -1,0 +1,435 @@
+"""GenerationConfig: defaults, TOML round trip, hashing and one-line errors (schemas/config.py,
+datagen/config_io.py)."""
+
+from __future__ import annotations
+
+import shutil
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+import pytest
+
+from datagen.config_io import config_from_dict, config_to_toml, load_config
+from datagen.errors import ConfigError
+from datagen.settings import RunSettings
+from schemas.config import CameraConfig, GenerationConfig, ViewSpaceConfig
+
+EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+
+
+def write(path: Path, text: str) -> Path:
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def builtin_view_space_text() -> str:
+    return resources.files("datagen").joinpath("data", "view_space_32.txt").read_text()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Defaults (design/PIPELINE.md sections 0-7)
+# ---------------------------------------------------------------------------------------------------------
+
+
+def test_defaults_are_the_pipeline_values() -> None:
+    config = GenerationConfig()
+    assert config.seed == 0
+    assert config.voxel_size == 0.002
+    assert config.grid_offset == (0.2718, 0.3141, 0.1618)
+    assert config.size_range == (0.05, 0.15)
+    assert config.mm_threshold == 10.0
+    assert config.rotations == 8
+    assert config.view_space == ViewSpaceConfig(source="builtin", count=32, radius=0.4)
+    assert config.num_views == 32
+    assert config.imaging == "targets"
+    assert config.band == 0.01
+    assert config.alpha == 10
+    assert config.empty_labels == "keep"
+
+
+def test_default_camera_is_the_authors_realsense() -> None:
+    camera = GenerationConfig().camera
+    assert (camera.width, camera.height) == (1280, 720)
+    assert camera.fx == pytest.approx(915.6067, abs=5e-5)
+    assert camera.fy == pytest.approx(913.3267, abs=5e-5)
+    assert camera.cx == pytest.approx(647.1453, abs=5e-5)
+    assert camera.cy == pytest.approx(372.5153, abs=5e-5)
+    assert camera.max_range == 1.0
+    assert camera == CameraConfig()
+
+
+def test_band_in_key_space_is_25_for_the_defaults() -> None:
+    assert GenerationConfig().band_keys_sq == 25
+    assert config_from_dict({"band": 0.006, "voxel_size": 0.002}).band_keys_sq == 9
+    # (0.009 / 0.003)^2 = 8.999999999999998 in floats: a band of exactly 3 voxels is still |dk|^2 <= 9
+    assert config_from_dict({"band": 0.009, "voxel_size": 0.003}).band_keys_sq == 9
+    assert config_from_dict({"band": 0.0059, "voxel_size": 0.002}).band_keys_sq == 8
+
+
+def test_config_is_frozen() -> None:
+    config = GenerationConfig()
+    with pytest.raises(ValueError):
+        config.alpha = 3  # type: ignore[misc]
+
+
+def test_load_config_none_gives_defaults() -> None:
+    assert load_config(None) == GenerationConfig()
+
+
+def test_run_settings_are_not_part_of_the_config() -> None:
+    assert "out" not in GenerationConfig.model_fields
+    settings = RunSettings(out="s3://bucket/x", num_workers=3)
+    assert settings.refiner_gpus == 0.0
+    with pytest.raises(ValueError):
+        RunSettings(refiner_gpus=1.5)
+    with pytest.raises(ValueError):
+        RunSettings(num_workers=0)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The example configs
+# ---------------------------------------------------------------------------------------------------------
+
+
+def test_example_default_toml_equals_the_defaults() -> None:
+    path = EXAMPLES / "default.toml"
+    assert load_config(path) == GenerationConfig()
+    assert load_config(path).config_hash() == GenerationConfig().config_hash()
+
+
+def test_example_default_toml_names_every_field() -> None:
+    data = tomllib.loads((EXAMPLES / "default.toml").read_text())
+    assert set(data) == set(GenerationConfig.model_fields)
+    assert set(data["view_space"]) == set(ViewSpaceConfig.model_fields)
+    assert set(data["camera"]) == set(CameraConfig.model_fields)
+
+
+def test_example_default_toml_comments_every_field() -> None:
+    lines = (EXAMPLES / "default.toml").read_text().splitlines()
+    for index, line in enumerate(lines):
+        if "=" in line and not line.lstrip().startswith("#"):
+            assert lines[index - 1].lstrip().startswith("#"), f"no comment above {line!r}"
+
+
+def test_example_pixels_toml_differs_in_imaging_only() -> None:
+    config = load_config(EXAMPLES / "pixels.toml")
+    assert config.imaging == "pixels"
+    assert config.model_copy(update={"imaging": "targets"}) == GenerationConfig()
+    assert config.config_hash() != GenerationConfig().config_hash()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# TOML round trip and hashing
+# ---------------------------------------------------------------------------------------------------------
+
+VARIANT = {
+    "seed": 7,
+    "voxel_size": 0.0025,
+    "grid_offset": [0.1, 0.2, 0.3],
+    "size_range": [0.06, 0.12],
+    "rotations": 4,
+    "imaging": "pixels",
+    "alpha": 5,
+    "band": 0.0125,
+    "empty_labels": "drop",
+    "view_space": {"source": "generated", "count": 20, "radius": 0.5, "generator_seed": 3},
+    "camera": {"width": 640, "height": 480, "fx": 500.0, "fy": 501.5, "cx": 320.25, "cy": 240.75},
+}
+
+
+@pytest.mark.parametrize("data", [{}, VARIANT], ids=["defaults", "variant"])
+def test_toml_round_trip_keeps_equality_and_hash(tmp_path: Path, data: dict) -> None:
+    config = config_from_dict(data)
+    path = write(tmp_path / "c.toml", config_to_toml(config))
+    loaded = load_config(path)
+    assert loaded == config
+    assert loaded.config_hash() == config.config_hash()
+
+
+def test_round_trip_keeps_float_bits(tmp_path: Path) -> None:
+    config = config_from_dict({"voxel_size": 0.1 + 0.2, "camera": {"fx": 915.6066894531250}})
+    loaded = load_config(write(tmp_path / "c.toml", config_to_toml(config)))
+    assert loaded.voxel_size == 0.1 + 0.2  # 0.30000000000000004, not 0.3
+    assert loaded.config_hash() == config.config_hash()
+
+
+def test_hash_is_sha256_hex() -> None:
+    digest = GenerationConfig().config_hash()
+    assert len(digest) == 64
+    int(digest, 16)
+
+
+CHANGES = [
+    {"seed": 1},
+    {"voxel_size": 0.003},
+    {"grid_offset": [0.2718, 0.3141, 0.1619]},
+    {"size_range": [0.05, 0.16]},
+    {"mm_threshold": 100.0},
+    {"rotations": 9},
+    {"gt_density": 128.0},
+    {"imaging": "pixels"},
+    {"band": 0.012},
+    {"refiner": "carve"},
+    {"poco_preset": "tiny_sv"},
+    {"poco_threshold": 0.6},
+    {"finetune_steps": 10},
+    {"poisson_depth": 9},
+    {"alpha": 11},
+    {"empty_labels": "drop"},
+    {"solver_time_limit": 20.0},
+    {"view_space": {"radius": 0.41}},
+    {"view_space": {"source": "generated"}},
+    {"view_space": {"source": "generated", "generator_seed": 1}},
+    {"camera": {"width": 1281}},
+    {"camera": {"height": 721}},
+    {"camera": {"fx": 915.0}},
+    {"camera": {"fy": 913.0}},
+    {"camera": {"cx": 640.0}},
+    {"camera": {"cy": 360.0}},
+    {"camera": {"max_range": 1.5}},
+]
+
+
+def test_every_field_is_covered_by_the_change_list() -> None:
+    top = {key for change in CHANGES for key in change}
+    # sampling has one allowed value so far; poco_weights files are covered by their own test
+    assert top | {"sampling", "poco_weights"} == set(GenerationConfig.model_fields)
+    nested = {
+        (key, sub) for change in CHANGES for key, value in change.items() if isinstance(value, dict) for sub in value
+    }
+    assert {sub for key, sub in nested if key == "camera"} == set(CameraConfig.model_fields)
+    # count alone cannot change with the built-in source: it is tested below with a generated source
+    view_space_keys = {sub for key, sub in nested if key == "view_space"}
+    assert view_space_keys | {"count"} == set(ViewSpaceConfig.model_fields)
+
+
+@pytest.mark.parametrize("change", CHANGES, ids=lambda change: str(change))
+def test_hash_changes_with_every_field(change: dict) -> None:
+    base = GenerationConfig()
+    changed = config_from_dict(change)
+    assert changed != base
+    assert changed.config_hash() != base.config_hash()
+
+
+def test_hash_changes_with_view_count() -> None:
+    a = config_from_dict({"view_space": {"source": "generated", "count": 32}})
+    b = config_from_dict({"view_space": {"source": "generated", "count": 31}})
+    assert a.config_hash() != b.config_hash()
+
+
+def test_hash_ignores_key_order_and_formatting(tmp_path: Path) -> None:
+    first = write(
+        tmp_path / "a.toml",
+        'seed = 3\nimaging = "pixels"\nalpha = 4\n[camera]\nfx = 900.0\nwidth = 1000\n[view_space]\nradius = 0.45\n',
+    )
+    second = write(
+        tmp_path / "b.toml",
+        "# same values, other order\n[view_space]\nradius = 0.450\n\n[camera]\nwidth = 1000\nfx = 9.0e2\n",
+    )
+    second.write_text('alpha = 4\nimaging = "pixels"\nseed = 3\n' + second.read_text())
+    a, b = load_config(first), load_config(second)
+    assert a == b
+    assert a.config_hash() == b.config_hash()
+    assert a.config_hash() != GenerationConfig().config_hash()
+
+
+def test_spelled_out_defaults_hash_like_the_defaults(tmp_path: Path) -> None:
+    path = write(tmp_path / "c.toml", "alpha = 10\nrotations = 8\n[camera]\nwidth = 1280\n")
+    assert load_config(path).config_hash() == GenerationConfig().config_hash()
+
+
+# ---------------------------------------------------------------------------------------------------------
+# A view-space file enters the hash by its content
+# ---------------------------------------------------------------------------------------------------------
+
+
+def test_view_space_file_hashes_by_content_not_path(tmp_path: Path) -> None:
+    text = builtin_view_space_text()
+    (tmp_path / "one").mkdir()
+    (tmp_path / "two" / "deeper").mkdir(parents=True)
+    write(tmp_path / "one" / "views.txt", text)
+    write(tmp_path / "two" / "deeper" / "other-name.txt", text)
+    config_a = write(tmp_path / "one" / "a.toml", '[view_space]\nsource = "views.txt"\n')
+    config_b = write(tmp_path / "two" / "b.toml", '[view_space]\nsource = "deeper/other-name.txt"\n')
+    a, b = load_config(config_a), load_config(config_b)
+    assert a.view_space.source != b.view_space.source  # two different resolved paths...
+    assert Path(a.view_space.source).is_absolute()
+    assert a.config_hash() == b.config_hash()  # ...one hash
+    # a file is not the built-in view space, even with the same positions
+    assert a.config_hash() != GenerationConfig().config_hash()
+    assert a.canonical_dict()["view_space"]["source"].startswith("sha256:")
+
+
+def test_view_space_file_edit_changes_the_hash(tmp_path: Path) -> None:
+    views = write(tmp_path / "views.txt", builtin_view_space_text())
+    config_path = write(tmp_path / "c.toml", '[view_space]\nsource = "views.txt"\n')
+    before = load_config(config_path).config_hash()
+    lines = views.read_text().splitlines()
+    x, y, z = (float(v) for v in lines[1].split())
+    lines[1] = f"{x} {y} {z + 0.001}"
+    views.write_text("\n".join(lines) + "\n")
+    after = load_config(config_path).config_hash()
+    assert before != after
+    # and back again
+    write(views, builtin_view_space_text())
+    assert load_config(config_path).config_hash() == before
+
+
+def test_view_space_file_config_round_trips(tmp_path: Path) -> None:
+    write(tmp_path / "views.txt", builtin_view_space_text())
+    config = load_config(write(tmp_path / "c.toml", '[view_space]\nsource = "views.txt"\n'))
+    moved = tmp_path / "elsewhere"
+    moved.mkdir()
+    again = load_config(write(moved / "d.toml", config_to_toml(config)))
+    assert again == config
+    assert again.config_hash() == config.config_hash()
+    # moving the view-space file (and pointing at it) keeps the hash
+    shutil.copy(tmp_path / "views.txt", moved / "views.txt")
+    relocated = load_config(write(moved / "e.toml", '[view_space]\nsource = "views.txt"\n'))
+    assert relocated.config_hash() == config.config_hash()
+
+
+def test_missing_view_space_file_is_a_config_error(tmp_path: Path) -> None:
+    path = write(tmp_path / "c.toml", '[view_space]\nsource = "nowhere.txt"\n')
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert "\n" not in message
+    assert "view_space.source" in message
+    assert "nowhere.txt" in message
+    assert "'builtin'" in message and "'generated'" in message
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Invalid values: one-line ConfigError naming the field and the allowed range
+# ---------------------------------------------------------------------------------------------------------
+
+
+def config_error(data: dict) -> str:
+    with pytest.raises(ConfigError) as info:
+        config_from_dict(data, origin="my.toml")
+    message = str(info.value)
+    assert "\n" not in message, message
+    assert message.startswith("my.toml: ")
+    return message
+
+
+@pytest.mark.parametrize("value", [0, -0.002, 0.0])
+def test_voxel_size_must_be_positive(value: float) -> None:
+    message = config_error({"voxel_size": value})
+    assert "voxel_size" in message
+    assert "allowed range: > 0" in message
+
+
+def test_alpha_zero_rejected() -> None:
+    message = config_error({"alpha": 0})
+    assert "alpha" in message
+    assert "allowed range: >= 1" in message
+
+
+def test_alpha_above_view_count_rejected() -> None:
+    message = config_error({"alpha": 33})
+    assert "alpha = 33" in message
+    assert "1..32" in message
+    assert "view_space.count" in message
+    # alpha = n is allowed
+    assert config_from_dict({"alpha": 32}).alpha == 32
+
+
+def test_alpha_bound_follows_the_view_count() -> None:
+    generated = {"source": "generated", "count": 12}
+    assert config_from_dict({"alpha": 12, "view_space": generated}).alpha == 12
+    message = config_error({"alpha": 13, "view_space": generated})
+    assert "alpha = 13" in message and "1..12" in message
+    # the default alpha (10) with fewer views is an error too, naming alpha
+    message = config_error({"view_space": {"source": "generated", "count": 8}})
+    assert "alpha = 10" in message and "1..8" in message
+
+
+def test_rotations_zero_rejected() -> None:
+    message = config_error({"rotations": 0})
+    assert "rotations" in message
+    assert "allowed range: >= 1" in message
+
+
+def test_view_count_above_64_rejected() -> None:
+    for source in ("builtin", "generated"):
+        message = config_error({"view_space": {"source": source, "count": 65}})
+        assert "view_space.count = 65" in message
+        assert "<= 64" in message
+    assert config_from_dict({"view_space": {"source": "generated", "count": 64}}).num_views == 64
+
+
+def test_builtin_view_space_must_have_32() -> None:
+    message = config_error({"view_space": {"count": 20}})
+    assert "view_space.count = 20" in message
+    assert "generated" in message
+
+
+def test_unknown_top_level_key_lists_allowed_keys() -> None:
+    message = config_error({"alhpa": 3})
+    assert "unknown key 'alhpa'" in message
+    for key in GenerationConfig.model_fields:
+        assert key in message
+
+
+def test_unknown_nested_key_lists_allowed_keys() -> None:
+    message = config_error({"camera": {"focal": 900.0}})
+    assert "unknown key 'camera.focal'" in message
+    allowed = message.split("allowed keys here:")[1]
+    assert [key.strip() for key in allowed.split(",")] == sorted(CameraConfig.model_fields)
+    message = config_error({"view_space": {"n": 32}})
+    assert "unknown key 'view_space.n'" in message
+    assert "count" in message and "radius" in message
+
+
+@pytest.mark.parametrize(
+    ("data", "field"),
+    [
+        ({"grid_offset": [1.0, 0.0, 0.0]}, "grid_offset"),
+        ({"grid_offset": [0.1, 0.2]}, "grid_offset"),
+        ({"size_range": [0.2, 0.1]}, "size_range"),
+        ({"size_range": [0.0, 0.1]}, "size_range"),
+        ({"imaging": "rays"}, "imaging"),
+        ({"empty_labels": "maybe"}, "empty_labels"),
+        ({"band": -0.01}, "band"),
+        ({"seed": -1}, "seed"),
+        ({"voxel_size": float("nan")}, "voxel_size"),
+        ({"camera": {"cx": 2000.0}}, "cx"),
+        ({"camera": {"width": 8}}, "camera.width"),
+        ({"view_space": {"radius": 0}}, "view_space.radius"),
+    ],
+)
+def test_other_invalid_values_name_the_field(data: dict, field: str) -> None:
+    assert field in config_error(data)
+
+
+def test_invalid_value_in_a_file_names_the_file(tmp_path: Path) -> None:
+    path = write(tmp_path / "bad.toml", "voxel_size = 0\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert message.startswith(str(path))
+    assert "voxel_size" in message and "> 0" in message
+    assert "\n" not in message
+
+
+def test_malformed_toml_rejected(tmp_path: Path) -> None:
+    path = write(tmp_path / "broken.toml", "alpha = \nseed = [1,\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert str(path) in message
+    assert "not valid TOML" in message
+    assert "line 1" in message
+    assert "\n" not in message
+
+
+def test_missing_config_file_rejected(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError) as info:
+        load_config(tmp_path / "nope.toml")
+    message = str(info.value)
+    assert "nope.toml" in message
+    assert "not found" in message
+    assert "\n" not in message

@@ -1,0 +1,1 @@
+"""Helpers shared by the tests (and a few benchmarks): fixtures, oracles, references."""
