@@ -41,8 +41,11 @@ from datagen.pipeline.objects.objects_file import read_objects_file  # noqa: E40
 from datagen.settings import RunSettings  # noqa: E402
 from jobs.ledger import DONE, Ledger  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
-from storage import committed_tasks, open_location  # noqa: E402
-from storage.shards import ShardReader  # noqa: E402
+from storage import (  # noqa: E402
+    ShardReader,
+    committed_tasks,
+    open_location,
+)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 OBJECT_STORE_BYTES = 100 * 1024**2

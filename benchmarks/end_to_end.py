@@ -38,8 +38,11 @@ from datagen import api  # noqa: E402
 from datagen.engine.driver import ensure_ray  # noqa: E402
 from datagen.settings import RunSettings  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
-from storage import committed_tasks, open_location  # noqa: E402
-from storage.shards import ShardReader  # noqa: E402
+from storage import (  # noqa: E402
+    ShardReader,
+    committed_tasks,
+    open_location,
+)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TICKS = os.sysconf("SC_CLK_TCK")

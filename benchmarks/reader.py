@@ -59,12 +59,16 @@ from datagen.pipeline.thread_limits import single_threaded_blas  # noqa: E402
 from datagen.pipeline.viewspace import build_view_space  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 from schemas.dataset import DATASET_FILE, DatasetInfo  # noqa: E402
-from storage.dataset_info import init_dataset  # noqa: E402
-from storage.location import open_location  # noqa: E402
-from storage.reader import SHARD_CACHE, finalise, open_dataset  # noqa: E402
-from storage.shards import ShardReader  # noqa: E402
+from storage import (  # noqa: E402
+    ShardReader,
+    finalise,
+    init_dataset,
+    open_dataset,
+    open_location,
+    write_task,
+)
+from storage.reader import SHARD_CACHE  # noqa: E402
 from storage.torch import OSVPDataset, ShardShuffleSampler  # noqa: E402
-from storage.writer import write_task  # noqa: E402
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 OBJECTS = REPO_ROOT / "examples" / "builtin.txt"

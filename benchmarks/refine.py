@@ -37,12 +37,12 @@ from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
 from datagen.pipeline.refine.base import RefineRequest  # noqa: E402
 from datagen.pipeline.refine.carve import CarveRefiner  # noqa: E402
 from datagen.pipeline.refine.poco.checkpoint import load_checkpoint  # noqa: E402
+from datagen.pipeline.refine.poco.inputs import query_keys  # noqa: E402
 from datagen.pipeline.refine.poco.network import PocoModel  # noqa: E402
 from datagen.pipeline.refine.poco.refiner import BUILTIN_WEIGHTS, PocoRefiner  # noqa: E402
 from datagen.pipeline.scanning import scan_task  # noqa: E402
 from datagen.pipeline.thread_limits import single_threaded_blas  # noqa: E402
 from datagen.pipeline.viewspace import build_view_space  # noqa: E402
-from datagen.training.poco_train import query_keys  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 
 

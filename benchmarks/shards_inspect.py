@@ -42,7 +42,7 @@ from typer.testing import CliRunner  # noqa: E402
 from datagen.cli.main import app  # noqa: E402
 from datagen.cli.shards import shards_app  # noqa: E402
 from datagen.shapes.builtins import builtin_names  # noqa: E402
-from storage.reader import open_dataset  # noqa: E402
+from storage import open_dataset  # noqa: E402
 
 SKIPPED_BUILTINS = ("torus_knot", "torus_knot_3_5")
 TARGET_SECONDS = 5.0

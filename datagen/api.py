@@ -1,4 +1,4 @@
-"""The Python API, mirroring the CLI: `submit`, `status`, `cancel`, `resume` for notebooks."""
+"""The Python API, mirroring the CLI: `submit`, `status`, `cancel`, `resume`, `serve` for notebooks."""
 
 from __future__ import annotations
 
@@ -6,19 +6,16 @@ from pathlib import Path
 from typing import Any
 
 from datagen.config_io import load_config
+from datagen.engine import serve as serve_loop
 from datagen.engine.driver import ProgressCallback, run_job
 from datagen.engine.job_plan import plan_job
+from datagen.engine.serve import LEDGER_FILE, ledger_for
 from datagen.errors import DatagenError
 from datagen.settings import RunSettings
-from jobs.ledger import Job, Ledger
+from jobs.ledger import Job, LedgerError
 from schemas.config import GenerationConfig
-from storage.location import StorageError
 
-LEDGER_FILE = "ledger.db"
-
-
-def ledger_for(settings: RunSettings) -> Ledger:
-    return Ledger(Path(settings.home) / LEDGER_FILE)
+__all__ = ["LEDGER_FILE", "cancel", "default_out", "enqueue", "ledger_for", "resume", "serve", "status", "submit"]
 
 
 def default_out(settings: RunSettings, job_id: str) -> str:
@@ -79,7 +76,9 @@ def resume(
                 refiner_gpus=settings.refiner_gpus,
                 progress=progress,
             )
-        except (DatagenError, StorageError) as exc:
+        except LedgerError:
+            raise  # the ledger itself cannot be used: nothing to record the failure in
+        except DatagenError as exc:
             ledger.fail_job(job_id, str(exc))  # a job that cannot start does not linger as pending
             raise
     finally:
@@ -100,3 +99,16 @@ def status(job_id: str | None = None, settings: RunSettings | None = None) -> li
         return [ledger.job(job_id)] if job_id else ledger.jobs()
     finally:
         ledger.close()
+
+
+def serve(
+    settings: RunSettings | None = None,
+    *,
+    poll: float = 2.0,
+    once: bool = False,
+    report: serve_loop.Report = print,
+    error: serve_loop.Report = serve_loop.print_error,
+) -> None:
+    """Take queued jobs from the ledger in order and run them, as ``datagen serve`` does; with
+    ``once``, return when no job is runnable. See `datagen.engine.serve.serve`."""
+    serve_loop.serve(settings or RunSettings(), poll=poll, once=once, report=report, error=error)

@@ -1,13 +1,23 @@
 """The project's own exception types: errors a user can cause, each with a message that says the fix.
 
-The CLI prints these in one line and exits non-zero; anything else is a bug and keeps its traceback.
+All derive from `DatagenError`, the one root defined in `schemas.errors` (re-exported here) that
+`storage.StorageError` and `jobs.LedgerError` derive from too. The CLI prints any of them in one
+line and exits non-zero; anything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
 
+from schemas.errors import DatagenError
 
-class DatagenError(Exception):
-    """Base of every error a user can cause and fix."""
+__all__ = [
+    "ConfigError",
+    "DatagenError",
+    "InvalidArgument",
+    "ObjectError",
+    "ObjectsFileError",
+    "OutputError",
+    "ViewSpaceError",
+]
 
 
 class ConfigError(DatagenError):

@@ -12,7 +12,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from storage.location import is_s3
+from storage import is_s3
 
 
 def _env_number(name: str, default: float) -> float:

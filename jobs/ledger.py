@@ -19,6 +19,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from schemas.errors import DatagenError
+
 PENDING, RUNNING, DONE, FAILED, CANCELLED = "pending", "running", "done", "failed", "cancelled"
 FINAL_STATES = (DONE, FAILED, CANCELLED)
 
@@ -53,7 +55,7 @@ CREATE INDEX IF NOT EXISTS tasks_by_state ON tasks (job_id, state, position);
 """
 
 
-class LedgerError(Exception):
+class LedgerError(DatagenError):
     """The ledger cannot be opened, or a job id is unknown; the message says what to do."""
 
 

@@ -13,6 +13,7 @@ from schemas.config import (
     canonical_json,
 )
 from schemas.dataset import DATASET_FILE, DatasetInfo
+from schemas.errors import DatagenError
 from schemas.index import INDEX_SCHEMA, CommitRecord, FailureRecord
 from schemas.jobs import JobSpec, ObjectRef, TaskSpec
 from schemas.shard import ShardAttributes, array_names
@@ -27,6 +28,7 @@ __all__ = [
     "SCHEMA_VERSION",
     "CameraConfig",
     "CommitRecord",
+    "DatagenError",
     "DatasetInfo",
     "FailureRecord",
     "GenerationConfig",

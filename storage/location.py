@@ -13,8 +13,10 @@ from typing import Any
 import fsspec
 from fsspec.implementations.local import LocalFileSystem
 
+from schemas.errors import DatagenError
 
-class StorageError(Exception):
+
+class StorageError(DatagenError):
     """The dataset location cannot be reached, read or written; the message says what to do."""
 
 

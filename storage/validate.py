@@ -15,7 +15,6 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 import pyarrow.parquet as pq
-from pydantic import ValidationError
 
 from schemas.index import INDEX_SCHEMA, CommitRecord
 from schemas.shard import (
@@ -37,7 +36,7 @@ from storage.dataset_info import read_info
 from storage.location import Location, StorageError, open_location
 from storage.reader import load_index
 from storage.shards import ShardReader
-from storage.writer import COMMITS
+from storage.writer import read_commits
 
 SAMPLED_ROWS_PER_SHARD = 8
 SHARD_THREADS = 8
@@ -71,7 +70,7 @@ def validate(
     if info.schema_version != SCHEMA_VERSION:
         problems.append(f"dataset.json: schema version {info.schema_version}, this reader knows {SCHEMA_VERSION}")
     num_views, alpha = info.num_views, info.config.alpha
-    commits, unreadable = _read_commits(location)
+    commits, unreadable = read_commits(location)
     problems.extend(unreadable)
 
     def check(numbered: tuple[int, CommitRecord]) -> list[str]:
@@ -88,18 +87,6 @@ def validate(
                 progress(done, len(commits))
     problems.extend(_check_index(location, commits))
     return problems
-
-
-def _read_commits(location: Location) -> tuple[list[CommitRecord], list[str]]:
-    records, problems = [], []
-    for name in location.listdir(COMMITS):
-        if not name.endswith(".json"):
-            continue
-        try:
-            records.append(CommitRecord.model_validate_json(location.read_bytes(f"{COMMITS}/{name}")))
-        except (ValidationError, OSError) as exc:
-            problems.append(f"{COMMITS}/{name}: unparsable commit record ({type(exc).__name__}); re-run the task")
-    return sorted(records, key=lambda r: r.task_id), problems
 
 
 def _check_shard(

@@ -20,7 +20,9 @@ import numpy as np
 import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.parquet as pq
+from pydantic import ValidationError
 
+from schemas.dataset import DATASET_FILE
 from schemas.index import INDEX_SCHEMA, CommitRecord, FailureRecord
 from schemas.shard import ShardAttributes
 from schemas.version import SCHEMA_VERSION
@@ -115,6 +117,49 @@ def committed_tasks(location: Location) -> list[CommitRecord]:
         if name.endswith(".json"):
             records.append(CommitRecord.model_validate_json(location.read_bytes(f"{COMMITS}/{name}")))
     return sorted(records, key=lambda r: r.task_id)
+
+
+def read_commits(location: Location) -> tuple[list[CommitRecord], list[str]]:
+    """Commit records that parse, sorted by task id, and one problem line for each that does not
+    (so a reader can name the damaged record instead of failing on it)."""
+    records, problems = [], []
+    for name in location.listdir(COMMITS):
+        if not name.endswith(".json"):
+            continue
+        try:
+            records.append(CommitRecord.model_validate_json(location.read_bytes(f"{COMMITS}/{name}")))
+        except (ValidationError, OSError) as exc:
+            problems.append(f"{COMMITS}/{name}: unparsable commit record ({type(exc).__name__}); re-run the task")
+    return sorted(records, key=lambda r: r.task_id), problems
+
+
+def stored_bytes(location: Location, commits: list[CommitRecord]) -> dict[str, int]:
+    """Bytes of each committed task's shard group and index fragment, from one listing of ``shards/``
+    (one request on an object store rather than one per task)."""
+    listing = location.fs.find(location.path(SHARDS), detail=True)
+    root = location.root.strip("/")
+    owner: dict[str, str] = {}
+    for record in commits:
+        owner[record.index_fragment] = record.task_id
+        owner[record.shard] = record.task_id
+    sizes: dict[str, int] = {}
+    for path, info in listing.items():
+        relative = str(path).strip("/").removeprefix(f"{root}/" if root else "")
+        task_id = owner.get(relative) or owner.get(_shard_group_of(relative))
+        if task_id is not None:
+            sizes[task_id] = sizes.get(task_id, 0) + int(info.get("size") or 0)
+    return sizes
+
+
+def _shard_group_of(relative: str) -> str:
+    """``shards/<task>/<attempt>.zarr`` for a file inside that group (or "" for other paths)."""
+    parts = relative.split("/")
+    return "/".join(parts[:3]) if len(parts) > 3 and parts[2].endswith(".zarr") else ""
+
+
+def holds_dataset(location: Location) -> bool:
+    """True when the location already holds a dataset (its description or any commit record)."""
+    return location.exists(DATASET_FILE) or bool(location.listdir(COMMITS))
 
 
 def sweep_orphans(location: Location) -> list[str]:

@@ -6,24 +6,9 @@ import os
 from pathlib import Path
 
 import pytest
+from support.meshes import SHARED_MESHES, shared_mesh_paths
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SHARED_MESHES = Path(os.environ.get("DATAGEN_SHARED_MESHES", REPO_ROOT.parent / "shared" / "meshes"))
-MESH_SUFFIXES = {".obj", ".ply", ".stl", ".off", ".glb"}
-
-
-def shared_mesh_paths() -> list[Path]:
-    """Every real mesh of ../shared/meshes, sorted; empty when the folder is absent."""
-    if not SHARED_MESHES.is_dir():
-        return []
-    return sorted(p for p in SHARED_MESHES.iterdir() if p.suffix.lower() in MESH_SUFFIXES)
-
-
-requires_shared_meshes = pytest.mark.skipif(
-    not shared_mesh_paths(), reason=f"real meshes not found at {SHARED_MESHES} (../shared/meshes)"
-)
 
 
 @pytest.fixture(scope="session")
@@ -32,3 +17,14 @@ def shared_meshes() -> list[Path]:
     if not paths:
         pytest.skip(f"real meshes not found at {SHARED_MESHES} (../shared/meshes)")
     return paths
+
+
+RAY_FIXTURES = {"engine_dataset"}
+"""Fixtures that start a local Ray (the engine writes their dataset)."""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark every test that starts Ray, also through a fixture, so ``-m "not ray"`` leaves them out."""
+    for item in items:
+        if RAY_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.ray)

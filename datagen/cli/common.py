@@ -1,26 +1,45 @@
-"""What every command shares: one-line user errors, the console, bounded BLAS threads."""
+"""What every command shares: the consoles, the one user-error handler, shared option types.
+
+Command modules import this module and nothing else from `datagen.cli`; `datagen.cli.main` (and
+`datagen.cli.shards` for its group) register their plain functions.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
 
 import typer
 from rich.console import Console
 
-from datagen.errors import DatagenError
+from schemas.errors import DatagenError
 
 console = Console()
 error_console = Console(stderr=True)
 
 EXIT_USER_ERROR = 2
+"""Exit code of a command stopped by a user error (`DatagenError`); 1 means "ran, found problems"."""
+
+ConfigOption = Annotated[
+    Path | None, typer.Option("--config", "-c", help="Generation config (TOML); defaults otherwise.")
+]
+UrlArgument = Annotated[str, typer.Argument(metavar="URL", help="Dataset: a local path or an fsspec URL.")]
 
 
 @contextmanager
 def user_errors() -> Iterator[None]:
-    """Print a user-caused error as one line and exit non-zero; bugs keep their traceback."""
+    """Print a user-caused error (any `DatagenError`: datagen's own, `storage.StorageError`,
+    `jobs.LedgerError`) as one ``error: <message>`` line on stderr and exit with `EXIT_USER_ERROR`;
+    bugs keep their traceback."""
     try:
         yield
     except DatagenError as exc:
         error_console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
         raise typer.Exit(EXIT_USER_ERROR) from None
+
+
+def say(text: str) -> None:
+    """One line on stdout exactly as given: no markup, no highlighting, no wrapping."""
+    console.print(text, markup=False, highlight=False, soft_wrap=True)

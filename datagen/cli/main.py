@@ -1,24 +1,15 @@
-"""``datagen``: the command line. Each command is a thin layer over library functions."""
+"""``datagen``: the command line. Builds the typer apps and registers the commands' plain functions.
+
+Each command module (`inputs`, `jobs`, and the `shards` and `poco` groups) imports nothing from
+`datagen.cli` but `datagen.cli.common`; this module is the one place that sees them all.
+"""
 
 from __future__ import annotations
 
-import statistics
-import time
-from pathlib import Path
-from typing import Annotated
-
-import numpy as np
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-from rich.table import Table
-from rich.text import Text
 
-from datagen.cli import jobs_cmd, poco_cmd
-from datagen.cli.common import console, user_errors
+from datagen.cli import inputs, jobs, poco
 from datagen.cli.shards import shards_app
-from datagen.config_io import config_to_toml, load_config
-from datagen.errors import DatagenError
-from datagen.pipeline.thread_limits import single_threaded_blas
 
 app = typer.Typer(
     help="Exact, reproducible training data for one-shot view planning.",
@@ -28,176 +19,27 @@ app = typer.Typer(
 )
 config_app = typer.Typer(help="Inspect generation configs.", no_args_is_help=True)
 objects_app = typer.Typer(help="Built-in shapes, synthetic shapes and objects files.", no_args_is_help=True)
+poco_app = typer.Typer(help="Train and evaluate the POCO refiner's network.", no_args_is_help=True)
+
 app.add_typer(config_app, name="config")
 app.add_typer(objects_app, name="objects")
-jobs_cmd.register(app)
+app.command("submit")(jobs.submit)
+app.command("resume")(jobs.resume)
+app.command("status")(jobs.status)
+app.command("cancel")(jobs.cancel)
+app.command("serve")(jobs.serve)
 app.add_typer(shards_app, name="shards")
-app.add_typer(poco_cmd.poco_app, name="poco")
+app.add_typer(poco_app, name="poco")
 
-ConfigOption = Annotated[
-    Path | None, typer.Option("--config", "-c", help="Generation config (TOML); defaults otherwise.")
-]
+config_app.command("show")(inputs.config_show)
+objects_app.command("builtins")(inputs.objects_builtins)
+objects_app.command("show")(inputs.objects_show)
+objects_app.command("synth")(inputs.objects_synth)
+app.command("scan")(inputs.scan)
 
-
-@config_app.command("show")
-def config_show(config: ConfigOption = None) -> None:
-    """Print the resolved generation config as TOML, with its hash."""
-    with user_errors():
-        resolved = load_config(config)
-        console.print(f"# config hash: {resolved.config_hash()}", markup=False, highlight=False)
-        console.print(config_to_toml(resolved), markup=False, highlight=False, end="")
-
-
-@objects_app.command("builtins")
-def objects_builtins() -> None:
-    """List the built-in shapes (use them as builtin:NAME in an objects file)."""
-    from datagen.shapes import builtins
-
-    table = Table("name", "family", "description", title="built-in shapes")
-    for name in builtins.builtin_names():
-        shape = builtins.get_builtin(name)
-        table.add_row(name, shape.family, shape.description)
-    console.print(table)
-
-
-@objects_app.command("show")
-def objects_show(
-    objects: Annotated[Path, typer.Argument(help="Objects file.")],
-    config: ConfigOption = None,
-) -> None:
-    """Resolve and prepare every line of an objects file; show each object or the line's error."""
-    from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
-    from datagen.pipeline.objects.prepare import prepare_object
-
-    with user_errors(), single_threaded_blas():
-        resolved = load_config(config)
-        listing = read_objects_file(objects)
-        table = Table("line", "name", "object id", "faces", "watertight", "units", "scale", "size m")
-        failures = 0
-        for entry in listing.entries:
-            if isinstance(entry, ObjectLineError):
-                failures += 1
-                table.add_row(str(entry.line), "-", Text(entry.message, style="red"), "", "", "", "", "")
-                continue
-            try:
-                prepared = prepare_object(entry, resolved)
-            except DatagenError as exc:
-                failures += 1
-                table.add_row(str(entry.line), entry.name, Text(str(exc), style="red"), "", "", "", "", "")
-                continue
-            table.add_row(
-                str(entry.line),
-                entry.name,
-                entry.object_id[:16],
-                str(len(prepared.faces)),
-                "yes" if prepared.watertight else "[yellow]no[/yellow]",
-                prepared.units_guessed,
-                f"{prepared.scale:.4g}",
-                f"{prepared.size:.4f}",
-            )
-        console.print(table)
-        console.print(f"{len(listing.entries) - failures} objects ready, {failures} with errors")
-        if failures:
-            raise typer.Exit(1)
-
-
-@objects_app.command("synth")
-def objects_synth(
-    count: Annotated[int, typer.Option("--count", "-n", min=1, max=100_000, help="How many meshes.")],
-    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the meshes and objects.txt.")],
-    seed: Annotated[int, typer.Option("--seed", "-s", min=0, help="Same seed, same bytes.")] = 0,
-) -> None:
-    """Write N seeded, varied, watertight meshes and an objects file listing them."""
-    from datagen.shapes.synthetic import synthesize
-
-    with user_errors():
-        listing = synthesize(count, seed, out)
-        console.print(f"wrote {count} meshes and {listing}")
-
-
-@app.command("scan")
-def scan(
-    objects: Annotated[Path, typer.Option("--objects", "-o", help="Objects file.")],
-    config: ConfigOption = None,
-    rotations: Annotated[
-        str, typer.Option(help="'all' for every rotation of the config, or one rotation index.")
-    ] = "all",
-) -> None:
-    """Prepare, sample P_gt and image every task (object x rotation) from every view.
-
-    The most complete end-to-end run until ``datagen submit`` exists: it exercises steps 0-3 of
-    the pipeline on real objects and reports what each view sees.
-    """
-    from datagen.pipeline.objects.objects_file import read_objects_file
-    from datagen.pipeline.objects.prepare import prepare_object
-    from datagen.pipeline.scanning import scan_task
-    from datagen.pipeline.viewspace import build_view_space
-
-    with user_errors(), single_threaded_blas():
-        resolved = load_config(config)
-        view_space = build_view_space(resolved.view_space)
-        listing = read_objects_file(objects)
-        chosen = _rotations(rotations, resolved.rotations)
-        table = Table(
-            "object",
-            "rot",
-            "P_gt",
-            "union V",
-            "keys/view",
-            "only-1-view",
-            "rays",
-            "s",
-            title=f"{resolved.imaging} imaging, {view_space.count} views",
-        )
-        problems: list[str] = [str(error) for error in listing.errors]
-        started = time.perf_counter()
-        with Progress(
-            TextColumn("{task.description}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeRemainingColumn(),
-            console=console,
-            transient=True,
-        ) as progress:
-            bar = progress.add_task("scanning", total=len(listing.objects) * len(chosen))
-            for spec in listing.objects:
-                try:
-                    prepared = prepare_object(spec, resolved)
-                except DatagenError as exc:
-                    problems.append(f"{spec.origin}: {exc}")
-                    progress.advance(bar, len(chosen))
-                    continue
-                for rotation in chosen:
-                    progress.update(bar, description=f"{spec.name} r{rotation}")
-                    result = scan_task(prepared, rotation, resolved, view_space)
-                    visible = result.visible_keys()
-                    keys, counts = np.unique(np.concatenate(visible), return_counts=True)
-                    single = set(keys[counts == 1].tolist())
-                    table.add_row(
-                        spec.name,
-                        str(rotation),
-                        str(len(result.ground_truth)),
-                        str(keys.size),
-                        str(int(statistics.median(len(v) for v in visible))),
-                        str(int(statistics.median(len(single.intersection(v.tolist())) for v in visible))),
-                        str(result.rays_cast),
-                        f"{result.seconds:.2f}",
-                    )
-                    progress.advance(bar)
-        console.print(table)
-        console.print(f"{table.row_count} tasks in {time.perf_counter() - started:.1f} s")
-        for problem in problems:
-            console.print(Text("error: ", style="red") + Text(problem), highlight=False)
-        if problems:
-            raise typer.Exit(1)
-
-
-def _rotations(text: str, total: int) -> list[int]:
-    if text == "all":
-        return list(range(total))
-    if text.isdigit() and int(text) < total:
-        return [int(text)]
-    raise DatagenError(f"--rotations {text!r}: use 'all' or a rotation index 0..{total - 1}")
+poco_app.command("train")(poco.poco_train)
+poco_app.command("eval")(poco.poco_eval)
+poco_app.command("export")(poco.poco_export)
 
 
 if __name__ == "__main__":

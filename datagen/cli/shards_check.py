@@ -3,7 +3,8 @@
 ``validate`` joins two checkers in one pass over the shards: `storage.validate` (structure, index,
 every checked label covers its U; numpy only) and `datagen.inspection.label_check` (minimality and
 the lexicographic tie-break, with a solver) as its per-shard hook, so each shard is read once.
-Where both see the same damage, the line is printed once.
+Where both see the same damage, the line is printed once. Plain functions; `datagen.cli.shards`
+registers them.
 """
 
 from __future__ import annotations
@@ -13,23 +14,16 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from datagen.cli.common import console
-from datagen.cli.shards import shards_app, storage_errors
+from datagen.cli.common import UrlArgument, console, say, user_errors
 
 if TYPE_CHECKING:
     from datagen.inspection.label_check import LabelReport
-
-UrlArgument = Annotated[str, typer.Argument(metavar="URL", help="Dataset: a local path or an fsspec URL.")]
 
 
 def _options(url: str) -> dict[str, Any]:
     from datagen.settings import RunSettings
 
     return RunSettings().storage_options(url)
-
-
-def _say(text: str) -> None:
-    console.print(text, markup=False, highlight=False, soft_wrap=True)
 
 
 def _progress() -> Progress:
@@ -44,7 +38,6 @@ def _progress() -> Progress:
     )
 
 
-@shards_app.command("validate")
 def validate(
     url: UrlArgument,
     every: Annotated[
@@ -54,10 +47,10 @@ def validate(
 ) -> None:
     """Check structure, index and labels (cover, minimum size, lexicographic choice); exit 0 only when all holds."""
     from datagen.inspection.label_check import ShardLabelCheck
-    from storage.location import StorageError, open_location
-    from storage.validate import validate as validate_storage
+    from storage import StorageError, open_location
+    from storage import validate as validate_storage
 
-    with storage_errors():
+    with user_errors():
         options = _options(url)
         report: LabelReport | None = None
         try:
@@ -80,13 +73,13 @@ def validate(
         if report is not None:
             problems.extend(_new_label_lines(problems, report))
         for line in problems:
-            _say(line)
+            say(line)
         scope = "every label" if every else "a sample of labels"
         if problems:
             count = f"{len(problems)} problem" + ("s" if len(problems) > 1 else "")
-            _say(f"{count} ({checked} labels checked with the solver, {scope})")
+            say(f"{count} ({checked} labels checked with the solver, {scope})")
             raise typer.Exit(1)
-        _say(f"ok: {tasks} task{'s' if tasks != 1 else ''} sound, {checked} labels checked with the solver ({scope})")
+        say(f"ok: {tasks} task{'s' if tasks != 1 else ''} sound, {checked} labels checked with the solver ({scope})")
 
 
 def _new_label_lines(storage_lines: list[str], report: LabelReport) -> list[str]:
@@ -106,7 +99,6 @@ def _new_label_lines(storage_lines: list[str], report: LabelReport) -> list[str]
     return lines
 
 
-@shards_app.command("relabel")
 def relabel(
     url: UrlArgument,
     alpha: Annotated[int, typer.Option("--alpha", min=1, help="The new alpha (views a key needs to enter P_full).")],
@@ -115,7 +107,7 @@ def relabel(
     """A new dataset: the same samples labelled for another alpha from the stored sets (no re-imaging)."""
     from datagen.engine.relabel import RelabelProgress, relabel_dataset
 
-    with storage_errors():
+    with user_errors():
         with _progress() as bar:
             task = bar.add_task("relabelling tasks", total=None)
 
@@ -124,13 +116,13 @@ def relabel(
 
             options = _options(url) or _options(out)
             summary = relabel_dataset(url, alpha, out, storage_options=options, progress=advance)
-        _say(
+        say(
             f"relabelled {summary.samples} samples of {summary.tasks} tasks for alpha {summary.alpha} "
             f"(source alpha {summary.source_alpha})"
         )
-        _say(f"{summary.seconds:.1f} s, {summary.labels_per_second:.1f} labels/s")
+        say(f"{summary.seconds:.1f} s, {summary.labels_per_second:.1f} labels/s")
         if summary.dropped_empty or summary.failed_cases:
-            _say(f"{summary.dropped_empty} empty labels dropped, {summary.failed_cases} cases not proven optimal")
-        _say(f"carried over {summary.failures} failure records")
-        _say(f"dataset: {summary.out}")
-        _say(f"config hash: {summary.config_hash}")
+            say(f"{summary.dropped_empty} empty labels dropped, {summary.failed_cases} cases not proven optimal")
+        say(f"carried over {summary.failures} failure records")
+        say(f"dataset: {summary.out}")
+        say(f"config hash: {summary.config_hash}")

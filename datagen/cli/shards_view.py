@@ -2,6 +2,7 @@
 
 Thin wrappers over `datagen.inspection`; tables are laid out for an 80-column terminal (short
 headers, long values folded onto more lines rather than cut). matplotlib is imported only for --png.
+Plain functions; `datagen.cli.shards` registers them.
 """
 
 from __future__ import annotations
@@ -15,13 +16,11 @@ import typer
 from rich import box
 from rich.table import Table
 
-from datagen.cli.common import console
-from datagen.cli.shards import shards_app, storage_errors
+from datagen.cli.common import UrlArgument, console, say, user_errors
 from datagen.errors import OutputError
 from datagen.inspection.listing import FAILED, SampleDetails, TaskRow, describe_sample, find_sample, list_tasks
 from datagen.inspection.stats import DatasetStats, dataset_stats
 
-UrlArgument = Annotated[str, typer.Argument(metavar="URL", help="Dataset: a local path or an fsspec URL.")]
 PngOption = Annotated[Path | None, typer.Option("--png", metavar="FILE", help="Also draw it to this PNG file.")]
 
 
@@ -77,11 +76,7 @@ def write_png(path: Path, image: bytes, quiet: bool = False) -> None:
     except OSError as exc:
         raise OutputError(f"cannot write {path}: {exc.strerror or exc}; give a writable --png path") from None
     if not quiet:
-        _say(f"wrote {path}")
-
-
-def _say(text: str) -> None:
-    console.print(text, markup=False, highlight=False, soft_wrap=True)
+        say(f"wrote {path}")
 
 
 # -- ls -------------------------------------------------------------------------------------------
@@ -103,22 +98,21 @@ def tasks_table(rows: list[TaskRow]) -> Table:
     return table
 
 
-@shards_app.command("ls")
 def ls(url: UrlArgument) -> None:
     """One row per task: object, rotation, samples, points in its refined clouds, bytes on disk, and
     whether it committed; each failed task's message follows the table."""
-    from storage.reader import open_dataset
+    from storage import open_dataset
 
-    with storage_errors():
+    with user_errors():
         rows = list_tasks(open_dataset(url))
     console.print(tasks_table(rows))
     failed = [row for row in rows if row.state == FAILED]
     committed = len(rows) - len(failed)
     total = sum(row.bytes_on_disk for row in rows)
-    _say(f"{committed} committed ({sum(r.samples for r in rows)} samples, {format_bytes(total)}), {len(failed)} failed")
+    say(f"{committed} committed ({sum(r.samples for r in rows)} samples, {format_bytes(total)}), {len(failed)} failed")
     for row in failed:
         origin = f" ({row.origin})" if row.origin else ""
-        _say(f"failed {row.task_id}{origin}: {row.message}")
+        say(f"failed {row.task_id}{origin}: {row.message}")
 
 
 # -- show -----------------------------------------------------------------------------------------
@@ -149,7 +143,6 @@ def sample_table(details: SampleDetails) -> Table:
     return table
 
 
-@shards_app.command("show")
 def show(
     url: UrlArgument,
     sample: Annotated[str, typer.Argument(metavar="SAMPLE", help="An index row number or a sample id.")],
@@ -157,9 +150,9 @@ def show(
 ) -> None:
     """One sample: its metadata, input and label views, point counts and solver record; --png draws
     its clouds and views."""
-    from storage.reader import open_dataset
+    from storage import open_dataset
 
-    with storage_errors():
+    with user_errors():
         dataset = open_dataset(url)
         details = describe_sample(dataset, find_sample(dataset, sample))
         console.print(sample_table(details))
@@ -186,7 +179,7 @@ def _histogram_text(histogram: dict[int, int]) -> str:
 
 
 def print_stats(stats: DatasetStats) -> None:
-    _say(
+    say(
         f"{stats.samples} samples in {stats.committed_tasks} committed tasks, {len(stats.failed)} failed; "
         f"{stats.empty_labels} empty labels"
     )
@@ -206,7 +199,7 @@ def print_stats(stats: DatasetStats) -> None:
     spread.add_row("points", *("-" if v is None else f"{v:.0f}" for v in stats.points_percentiles.values()))
     spread.add_row("solver time", *(format_seconds(v) for v in stats.solver_seconds_percentiles.values()))
     console.print(spread)
-    _say("proofs: " + (", ".join(f"{kind} {count}" for kind, count in stats.solver_proofs.items()) or "none"))
+    say("proofs: " + (", ".join(f"{kind} {count}" for kind, count in stats.solver_proofs.items()) or "none"))
 
     if stats.failed:
         failed = _table("task", "object", "message", title="failed tasks")
@@ -215,7 +208,6 @@ def print_stats(stats: DatasetStats) -> None:
         console.print(failed)
 
 
-@shards_app.command("stats")
 def stats(
     url: UrlArgument,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object instead of tables.")] = False,
@@ -223,9 +215,9 @@ def stats(
 ) -> None:
     """Samples per object and rotation, cases and label sizes per case size, empty labels, points and
     solver time percentiles, failed tasks; --json for machines, --png for the histograms."""
-    from storage.reader import open_dataset
+    from storage import open_dataset
 
-    with storage_errors():
+    with user_errors():
         summary = dataset_stats(open_dataset(url))
         if as_json:
             typer.echo(json.dumps(summary.to_json(), indent=1))

@@ -31,11 +31,9 @@ from jobs.ledger import CANCELLED, DONE, FAILED, PENDING, RUNNING, Job, Ledger
 from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
 from schemas.index import FailureRecord
+from schemas.jobs import JobSpec, TaskSpec
 from schemas.version import SCHEMA_VERSION
-from storage.dataset_info import init_dataset
-from storage.location import StorageError, open_location, storage_failure
-from storage.reader import finalise
-from storage.writer import write_failure
+from storage import StorageError, finalise, init_dataset, open_location, storage_failure, write_failure
 
 LEASE_SECONDS = 120.0
 RENEW_EVERY = 20.0
@@ -80,8 +78,8 @@ def ensure_ray(address: str | None, num_cpus: int | None) -> None:
 
 
 def _remote_execute(
-    task: dict[str, Any],
-    config: dict[str, Any],
+    task: TaskSpec,
+    config: GenerationConfig,
     out: str,
     attempt_id: str,
     storage_options: dict[str, Any] | None,
@@ -132,12 +130,13 @@ def run_job(
     import ray
 
     job = ledger.job(job_id)
-    spec = job.spec
-    config = GenerationConfig.model_validate(spec["config"])
+    spec = JobSpec.model_validate(job.spec)
+    config = spec.config
+    tasks_by_id = {task.task_id: task for task in spec.tasks}
     location = open_location(job.out, storage_options)
     with _store_errors(job.out):
         init_dataset(location, dataset_info(config))
-        for number, line_error in enumerate(spec.get("line_errors", [])):
+        for number, line_error in enumerate(spec.line_errors):
             origin, _, message = line_error.partition(": ")
             write_failure(
                 location,
@@ -161,7 +160,6 @@ def run_job(
     )
     device = "cuda" if refiner_gpus > 0 else "cpu"
     capacity = max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1)))
-    config_data = config.model_dump(mode="json")
     tasks = ledger.tasks(job_id)
     state = JobProgress(total=len(tasks))
     state.done = sum(1 for t in tasks if t.state == DONE)
@@ -179,7 +177,8 @@ def run_job(
         free = capacity - len(in_flight)
         if free > 0:
             for claim in ledger.claim(job_id, owner, LEASE_SECONDS, free):
-                ref = remote.remote(claim.task.spec, config_data, job.out, claim.attempt_id, storage_options, device)
+                task = tasks_by_id[claim.task.task_id]
+                ref = remote.remote(task, config, job.out, claim.attempt_id, storage_options, device)
                 in_flight[ref] = (claim.task.task_id, claim.attempt_id)
         if not in_flight:
             break
@@ -199,16 +198,16 @@ def run_job(
         summary = {
             "tasks": len(tasks),
             "done": counts.get(DONE, 0),
-            "failed": counts.get(FAILED, 0) + len(spec.get("line_errors", [])),
+            "failed": counts.get(FAILED, 0) + len(spec.line_errors),
             "samples": state.samples,
-            "line_errors": spec.get("line_errors", []),
+            "line_errors": spec.line_errors,
             "failures": [
-                f"{t.spec.get('object', {}).get('origin', '')}: {t.task_id}: {t.error}"
+                f"{tasks_by_id[t.task_id].object.origin}: {t.task_id}: {t.error}"
                 for t in ledger.tasks(job_id)
                 if t.state == FAILED
             ],
         }
-        ledger.finish_job(job_id, summary, other_failures=len(spec.get("line_errors", [])))
+        ledger.finish_job(job_id, summary, other_failures=len(spec.line_errors))
     if progress:
         progress(state)
     return ledger.job(job_id)

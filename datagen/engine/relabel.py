@@ -27,15 +27,24 @@ from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.task import Sample, TaskResult, TaskSets, relabel, sample_id
 from schemas.config import GenerationConfig
-from schemas.dataset import DATASET_FILE, DatasetInfo
+from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import GT_KEYS, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from schemas.version import SCHEMA_VERSION
-from storage.dataset_info import init_dataset, read_info
-from storage.location import Location, StorageError, open_location
-from storage.reader import finalise
-from storage.shards import ShardReader
-from storage.writer import COMMITS, committed_tasks, read_failures, write_failure, write_task
+from storage import (
+    Location,
+    ShardReader,
+    StorageError,
+    committed_tasks,
+    finalise,
+    holds_dataset,
+    init_dataset,
+    open_location,
+    read_failures,
+    read_info,
+    write_failure,
+    write_task,
+)
 
 TASK_METADATA = ("refiner", "weights_id", "device", "seed", "schema_version")
 """Per-task metadata carried over from the source shard (the config hash is the new one)."""
@@ -229,7 +238,7 @@ def _config_hash(config: GenerationConfig) -> str:
 
 
 def _refuse_existing(target: Location) -> None:
-    if target.exists(DATASET_FILE) or target.listdir(COMMITS):
+    if holds_dataset(target):
         raise OutputError(f"{target.url}: already holds a dataset; relabel writes a new one, give an empty --out")
 
 

@@ -13,7 +13,7 @@ from datagen.pipeline.task import TaskResult
 from schemas.config import GenerationConfig
 from schemas.shard import GT_KEYS, MASK_DTYPE, OFFSET_DTYPE, ShardAttributes, keys_array, offsets_array
 from schemas.version import SCHEMA_VERSION
-from storage.writer import ShardPayload
+from storage import ShardPayload
 
 
 def task_payload(result: TaskResult, config: GenerationConfig) -> ShardPayload:

@@ -26,8 +26,7 @@ from schemas.config import GenerationConfig
 from schemas.index import FailureRecord
 from schemas.jobs import ObjectRef, TaskSpec
 from schemas.version import SCHEMA_VERSION
-from storage.location import open_location
-from storage.writer import read_commit, write_failure, write_task
+from storage import open_location, read_commit, write_failure, write_task
 
 
 @dataclass(frozen=True)
@@ -44,8 +43,8 @@ class TaskOutcome:
 
 
 def execute_task(
-    task: dict[str, Any],
-    config: dict[str, Any],
+    spec: TaskSpec,
+    config: GenerationConfig,
     out: str,
     attempt_id: str,
     storage_options: dict[str, Any] | None = None,
@@ -56,8 +55,8 @@ def execute_task(
     ``device`` is where a learned refiner runs ('cuda' when the engine reserved a GPU share).
     """
     started = time.perf_counter()
-    spec = TaskSpec.model_validate(task)
-    generation = _config(_freeze(config))
+    frozen = config.model_dump_json()
+    generation = _config(frozen)
     location = open_location(out, storage_options)
     committed = read_commit(location, spec.task_id)
     if committed is not None:
@@ -66,8 +65,8 @@ def execute_task(
     try:
         refiner = make_refiner(generation, device)  # first: it may import torch, which the bound below fixes
         with single_threaded_blas(), fixed_torch_threads():
-            prepared = _prepared(spec.object.model_dump_json(), _freeze(config))
-            result = run_task(prepared, spec.rotation, generation, _view_space(_freeze(config)), refiner)
+            prepared = _prepared(spec.object.model_dump_json(), frozen)
+            result = run_task(prepared, spec.rotation, generation, _view_space(frozen), refiner)
     except DatagenError as exc:
         write_failure(
             location,
@@ -82,10 +81,6 @@ def execute_task(
         return TaskOutcome(spec.task_id, False, 0, execution, message=str(exc), seconds=time.perf_counter() - started)
     record = write_task(location, task_payload(result, generation), execution)
     return TaskOutcome(spec.task_id, True, record.num_samples, record.attempt_id, seconds=time.perf_counter() - started)
-
-
-def _freeze(config: dict[str, Any]) -> str:
-    return GenerationConfig.model_validate(config).model_dump_json()
 
 
 @functools.lru_cache(maxsize=4)

@@ -30,17 +30,11 @@ from typing import Any
 import highspy
 import numpy as np
 import numpy.typing as npt
-from pydantic import ValidationError
 
 from datagen.pipeline import setcover
 from schemas.index import CommitRecord
 from schemas.shard import LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
-from storage.dataset_info import read_info
-from storage.location import Location, open_location
-from storage.reader import load_index
-from storage.shards import ShardReader
-from storage.validate import SAMPLED_ROWS_PER_SHARD
-from storage.writer import COMMITS
+from storage import SAMPLED_ROWS_PER_SHARD, Location, ShardReader, load_index, open_location, read_commits, read_info
 
 MaskArray = npt.NDArray[np.uint64]
 
@@ -149,7 +143,7 @@ class ShardLabelCheck:
 
     def __init__(self, location: Location, full: bool, seed: int = 0, search_limit: int = SEARCH_LIMIT) -> None:
         info = read_info(location)
-        self.records = _readable_commits(location)
+        self.records = read_commits(location)[0]
         self.alpha, self.num_views = info.config.alpha, info.num_views
         self.full, self.seed, self.search_limit = full, seed, search_limit
         self.index_rows = _index_rows(location, self.records)
@@ -168,18 +162,6 @@ class ShardLabelCheck:
     def finish(self) -> LabelReport:
         self.report.problems.sort(key=lambda p: (p.shard, -1 if p.row is None else p.row, p.kind, p.line))
         return self.report
-
-
-def _readable_commits(location: Location) -> list[CommitRecord]:
-    """Commit records that parse, sorted by task; `storage.validate` reports the others."""
-    records = []
-    for name in location.listdir(COMMITS):
-        if name.endswith(".json"):
-            try:
-                records.append(CommitRecord.model_validate_json(location.read_bytes(f"{COMMITS}/{name}")))
-            except (ValidationError, OSError):
-                continue
-    return sorted(records, key=lambda r: r.task_id)
 
 
 def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tuple[str, int], tuple[str, int]]:

@@ -13,10 +13,7 @@ from typing import Any
 import pyarrow.compute as pc
 
 from datagen.errors import InvalidArgument
-from schemas.index import CommitRecord
-from storage.location import Location
-from storage.reader import Dataset
-from storage.writer import SHARDS, committed_tasks
+from storage import Dataset, committed_tasks, stored_bytes
 
 COMMITTED = "committed"
 FAILED = "failed"
@@ -117,30 +114,6 @@ def _index_totals(dataset: Dataset) -> dict[str, dict[str, Any]]:
             "points": row["num_points_sum"],
         }
     return totals
-
-
-def stored_bytes(location: Location, commits: list[CommitRecord]) -> dict[str, int]:
-    """Bytes of each committed task's shard group and index fragment, from one listing of ``shards/``
-    (one request on an object store rather than one per task)."""
-    listing = location.fs.find(location.path(SHARDS), detail=True)
-    root = location.root.strip("/")
-    owner: dict[str, str] = {}
-    for record in commits:
-        owner[record.index_fragment] = record.task_id
-        owner[record.shard] = record.task_id
-    sizes: dict[str, int] = {}
-    for path, info in listing.items():
-        relative = str(path).strip("/").removeprefix(f"{root}/" if root else "")
-        task_id = owner.get(relative) or owner.get(_shard_group_of(relative))
-        if task_id is not None:
-            sizes[task_id] = sizes.get(task_id, 0) + int(info.get("size") or 0)
-    return sizes
-
-
-def _shard_group_of(relative: str) -> str:
-    """``shards/<task>/<attempt>.zarr`` for a file inside that group (or "" for other paths)."""
-    parts = relative.split("/")
-    return "/".join(parts[:3]) if len(parts) > 3 and parts[2].endswith(".zarr") else ""
 
 
 # -- one sample ---------------------------------------------------------------------------------------

@@ -11,8 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from datagen.inspection.listing import failed_tasks
-from storage.reader import Dataset
-from storage.writer import committed_tasks
+from storage import Dataset, committed_tasks
 
 PERCENTILES = (0, 5, 50, 95, 100)
 """The percentiles reported for per-sample quantities (numpy's default linear interpolation)."""

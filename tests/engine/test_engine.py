@@ -13,7 +13,6 @@ from collections import Counter
 from pathlib import Path
 
 import pytest
-from conftest import SHARED_MESHES
 from support.engine import (
     FAST_BUILTINS,
     SHARED_MESH_LINES,
@@ -30,6 +29,7 @@ from support.engine import (
     write_config,
     write_objects,
 )
+from support.meshes import SHARED_MESHES
 from typer.testing import CliRunner
 
 from datagen import api
@@ -46,7 +46,10 @@ from datagen.settings import RunSettings
 from jobs.ledger import DONE, FAILED
 from storage import open_dataset, open_location, read_failures, validate
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="engine tests read /proc (Linux)")
+pytestmark = [
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="engine tests read /proc (Linux)"),
+    pytest.mark.ray,
+]
 
 RAY_CPUS = 2
 

@@ -1,9 +1,16 @@
 """The refiner interface (PIPELINE.md section 4, datagen/pipeline/refine): the band, P(O) = keys(O) united
-with R(O), the ``none`` refiner and the registry."""
+with R(O), the ``none`` refiner, the factory (`make_refiner`), and the ``poco`` refiner running in a
+process where training code cannot be imported."""
 
 from __future__ import annotations
 
 import itertools
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -108,7 +115,7 @@ def test_refine_request_carries_the_case_mask() -> None:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# The ``none`` refiner and the registry
+# The ``none`` refiner and the factory
 # ---------------------------------------------------------------------------------------------------------
 
 
@@ -137,7 +144,163 @@ def test_make_refiner_none() -> None:
 
 
 def test_make_refiner_unknown_is_a_config_error() -> None:
-    # The config schema refuses other names; bypass it to reach the registry's own check.
+    # The config schema refuses other names; bypass it to reach the factory's own check.
     config = GenerationConfig.model_construct(**{**GenerationConfig().__dict__, "refiner": "marching"})
     with pytest.raises(ConfigError, match="marching"):
         make_refiner(config)
+
+
+def test_make_refiner_names_every_refiner() -> None:
+    from datagen.pipeline.refine.factory import BUILDERS
+
+    assert set(BUILDERS) == {"none", "carve", "poisson", "poco"}
+    config = GenerationConfig.model_construct(**{**GenerationConfig().__dict__, "refiner": "marching"})
+    with pytest.raises(ConfigError, match=r"use 'none', 'carve', 'poisson' or 'poco'$"):
+        make_refiner(config)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The ``poco`` refiner never loads training code
+# ---------------------------------------------------------------------------------------------------------
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+BLOCKED_IN_WORKER = (
+    "datagen.training",
+    "datagen.engine",
+    "datagen.cli",
+    "datagen.inspection",
+    "datagen.api",
+    "trimesh",
+)
+
+REFINE_WITHOUT_TRAINING = textwrap.dedent(
+    """
+    import importlib.abc
+    import json
+    import sys
+
+    BLOCKED = sys.argv[1].split(",")
+
+
+    def blocked(name):
+        return any(name == b or name.startswith(b + ".") for b in BLOCKED)
+
+
+    class Blocker(importlib.abc.MetaPathFinder):
+        def find_spec(self, name, path=None, target=None):
+            if blocked(name):
+                raise ImportError(f"blocked import of {name}")
+            return None
+
+
+    sys.meta_path.insert(0, Blocker())
+    assert not [name for name in sys.modules if blocked(name)]
+
+    import numpy as np
+    import torch
+
+    torch.set_num_threads(1)
+    for name in BLOCKED:  # the blocker really blocks
+        try:
+            __import__(name)
+        except ImportError:
+            pass
+        else:
+            raise SystemExit(f"{name} was importable despite the blocker")
+
+    from datagen.pipeline.imaging import Observation
+    from datagen.pipeline.refine import RefineRequest, make_refiner
+    from schemas.config import GenerationConfig
+
+    data = np.load(sys.argv[2])
+    observation = Observation(
+        views=tuple(int(v) for v in data["views"]),
+        origins=data["origins"],
+        points=data["points"],
+        point_views=data["point_views"],
+        pixels=data["pixels"],
+        keys=data["keys"],
+    )
+    refiner = make_refiner(GenerationConfig(refiner="poco"))
+    request = RefineRequest(observation, int(sys.argv[4]), sys.argv[5], int(sys.argv[6]))
+    refined = refiner.refine([request])[0]
+    np.save(sys.argv[3], refined)
+    print(json.dumps({
+        "refiner": type(refiner).__name__,
+        "weights_id": refiner.weights_id,
+        "loaded": sorted(name for name in sys.modules if blocked(name)),
+    }))
+    """
+)
+
+
+def test_poco_refines_in_a_process_that_cannot_import_training(tmp_path: Path) -> None:
+    torch = pytest.importorskip("torch")
+    from datagen.pipeline.objects.prepare import prepare_object
+    from datagen.pipeline.objects.spec import BUILTIN_PREFIX, ObjectOptions, ObjectSpec, builtin_object_id
+    from datagen.pipeline.refine.poco.refiner import BUILTIN_WEIGHTS
+    from datagen.pipeline.scanning import scan_task
+    from datagen.pipeline.viewspace import build_view_space
+    from datagen.shapes import builtins
+
+    if not BUILTIN_WEIGHTS.is_file():
+        pytest.skip("no shipped weights")
+    # Preparing and scanning an object needs trimesh: done here, the observation goes over as a .npz.
+    config = GenerationConfig(refiner="poco")
+    options = ObjectOptions(size=0.08)
+    identity = builtins.builtin_generator_identity("capsule")
+    spec = ObjectSpec(
+        source=BUILTIN_PREFIX + "capsule",
+        name="capsule",
+        options=options,
+        object_id=builtin_object_id(identity, options),
+        generator=identity,
+    )
+    imaging = scan_task(prepare_object(spec, config), 1, config, build_view_space(config.view_space))
+    observation = imaging.observations[3]
+    assert observation.keys.size > 0
+    given = tmp_path / "observation.npz"
+    np.savez(
+        given,
+        views=np.array(observation.views),
+        origins=observation.origins,
+        points=observation.points,
+        point_views=observation.point_views,
+        pixels=observation.pixels,
+        keys=observation.keys,
+    )
+    out = tmp_path / "refined.npy"
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONPATH=str(REPO_ROOT))
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            REFINE_WITHOUT_TRAINING,
+            ",".join(BLOCKED_IN_WORKER),
+            str(given),
+            str(out),
+            "7",
+            spec.object_id,
+            "1",
+        ],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-4000:]
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["refiner"] == "PocoRefiner" and len(report["weights_id"]) == 64
+    assert report["loaded"] == []  # datagen.training (and trimesh, the CLI, the engine) never came in
+    refined = np.load(out)
+    assert refined.dtype == np.int64 and refined.size > 0
+    # The same keys as this process's refiner (one torch thread in both).
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        here = make_refiner(config).refine([RefineRequest(observation, 7, spec.object_id, 1)])[0]
+    finally:
+        torch.set_num_threads(before)
+    np.testing.assert_array_equal(refined, here)

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO_ROOT, SHARED_MESHES, requires_shared_meshes
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support.meshes import REPO_ROOT, SHARED_MESHES, requires_shared_meshes
 from support.setcover_oracle import NoCover, oracle_cover, oracle_minimal
 
 from datagen.pipeline import setcover

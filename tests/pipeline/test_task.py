@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import requires_shared_meshes, shared_mesh_paths
+from support.meshes import requires_shared_meshes, shared_mesh_paths
 
 from datagen.pipeline.cases import greedy_trajectories, long_tail_cases
 from datagen.pipeline.imaging import Observation

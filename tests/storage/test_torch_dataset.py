@@ -1,7 +1,7 @@
 """storage.torch: OSVPDataset tensors, seeded resampling, splits, lazy per-worker stores, and the
-shard-aware sampler, on a small real dataset (3 built-ins x 2 rotations, `torch_fixtures`).
+shard-aware sampler, on a small real dataset (3 built-ins x 2 rotations, `support.torch_data`).
 
-Expected values come from the pipeline's own output (`torch_fixtures.Built.samples`), not from the
+Expected values come from the pipeline's own output (`support.torch_data.Built.samples`), not from the
 reader under test.
 """
 

@@ -35,6 +35,7 @@ from jobs.ledger import DONE, Job
 pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="engine tests read /proc (Linux)"),
     pytest.mark.slow,
+    pytest.mark.ray,
 ]
 
 OBJECT_STORE_BYTES = 100 * 1024**2

@@ -46,6 +46,7 @@ from storage import committed_tasks, open_dataset, open_location, validate
 pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fault tests read /proc (Linux)"),
     pytest.mark.slow,
+    pytest.mark.ray,
 ]
 
 RAY_CPUS = 2

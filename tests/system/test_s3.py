@@ -59,6 +59,8 @@ from storage.writer import sweep_orphans
 pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="engine tests read /proc (Linux)"),
     pytest.mark.slow,
+    pytest.mark.ray,
+    pytest.mark.s3,
 ]
 
 BUCKET = "datasets"

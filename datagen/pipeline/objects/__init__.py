@@ -1,1 +1,1 @@
-"""Objects: objects files, built-in and synthetic shapes, and preparation into the object frame."""
+"""Users' objects: objects files, what each line names, and preparation into the object frame."""

@@ -1,8 +1,14 @@
-"""Build the refiner a config names."""
+"""Build the refiner a config names: `BUILDERS` maps each refiner name to a small builder function.
+
+The ``poisson`` and ``poco`` builders import their modules (Open3D, torch) only when called, so a
+worker that never uses them never loads them; a missing optional dependency is a `ConfigError` that
+says what to install.
+"""
 
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -11,6 +17,9 @@ from datagen.pipeline.refine.base import Refiner
 from datagen.pipeline.refine.carve import CarveRefiner
 from datagen.pipeline.refine.none import NoRefiner
 from schemas.config import BUILTIN_POCO_WEIGHTS, GenerationConfig
+
+RefinerBuilder = Callable[[GenerationConfig, str], Refiner]
+"""(config, device) -> the refiner; ``device`` only matters to a learned refiner."""
 
 
 def poco_weights_path(config: GenerationConfig) -> Path:
@@ -38,30 +47,50 @@ def _load_poco(path: str, preset: str, mtime_ns: int, device: str) -> tuple[Any,
     return model, weights_sha256(Path(path))
 
 
+def build_none(config: GenerationConfig, device: str) -> Refiner:
+    return NoRefiner()
+
+
+def build_carve(config: GenerationConfig, device: str) -> Refiner:
+    return CarveRefiner(config)
+
+
+def build_poisson(config: GenerationConfig, device: str) -> Refiner:
+    try:
+        from datagen.pipeline.refine.poisson import PoissonRefiner
+    except ImportError as error:
+        raise ConfigError(
+            f"refiner = 'poisson' needs Open3D ({error}); install it with: pip install 'datagen[poisson]'"
+        ) from None
+    return PoissonRefiner(config)
+
+
+def build_poco(config: GenerationConfig, device: str) -> Refiner:
+    try:
+        from datagen.pipeline.refine.poco.refiner import PocoRefiner
+    except ImportError as error:
+        raise ConfigError(
+            f"refiner = 'poco' needs torch ({error}); install it (pip install torch; the CPU build is enough)"
+        ) from None
+    path = poco_weights_path(config)
+    if not path.is_file():
+        raise ConfigError(f"{path}: POCO weights file not found; set poco_weights to a weights file or 'builtin'")
+    model, sha = _load_poco(str(path.resolve()), config.poco_preset, path.stat().st_mtime_ns, device)
+    return PocoRefiner(config, model, sha, config.poco_threshold, config.finetune_steps, device=device)
+
+
+BUILDERS: dict[str, RefinerBuilder] = {
+    "none": build_none,
+    "carve": build_carve,
+    "poisson": build_poisson,
+    "poco": build_poco,
+}
+
+
 def make_refiner(config: GenerationConfig, device: str = "cpu") -> Refiner:
     """The config's refiner; ``device`` ('cpu' or 'cuda') places a learned one (RunSettings.refiner_gpus)."""
-    if config.refiner == "none":
-        return NoRefiner()
-    if config.refiner == "carve":
-        return CarveRefiner(config)
-    if config.refiner == "poisson":
-        try:
-            from datagen.pipeline.refine.poisson import PoissonRefiner
-        except ImportError as error:
-            raise ConfigError(
-                f"refiner = 'poisson' needs Open3D ({error}); install it with: pip install 'datagen[poisson]'"
-            ) from None
-        return PoissonRefiner(config)
-    if config.refiner == "poco":
-        try:
-            from datagen.pipeline.refine.poco.refiner import PocoRefiner
-        except ImportError as error:
-            raise ConfigError(
-                f"refiner = 'poco' needs torch ({error}); install it (pip install torch; the CPU build is enough)"
-            ) from None
-        path = poco_weights_path(config)
-        if not path.is_file():
-            raise ConfigError(f"{path}: POCO weights file not found; set poco_weights to a weights file or 'builtin'")
-        model, sha = _load_poco(str(path.resolve()), config.poco_preset, path.stat().st_mtime_ns, device)
-        return PocoRefiner(config, model, sha, config.poco_threshold, config.finetune_steps, device=device)
-    raise ConfigError(f"refiner = {config.refiner!r} is not available; use 'none', 'carve', 'poisson' or 'poco'")
+    builder = BUILDERS.get(config.refiner)
+    if builder is None:
+        *others, last = (repr(name) for name in BUILDERS)
+        raise ConfigError(f"refiner = {config.refiner!r} is not available; use {', '.join(others)} or {last}")
+    return builder(config, device)

@@ -1,4 +1,5 @@
-"""POCO point-convolution occupancy network (pure PyTorch), its presets, spatial tables and checkpoints.
+"""POCO point-convolution occupancy network (pure PyTorch), its presets, spatial tables and checkpoints;
+what the network sees (`inputs`, shared with training) and the ``poco`` refiner (`refiner`).
 
 Import this package only where torch is available (it is an optional dependency of datagen).
 """

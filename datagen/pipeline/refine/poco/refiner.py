@@ -1,9 +1,11 @@
 """The ``poco`` refiner (PIPELINE.md section 4): a POCO network classifies the unknown band keys.
 
 For each observation O: the band keys of O minus keys(O) minus the keys some view saw empty are
-queried (`training.query_keys`, exactly the training queries); R(O) = the queries whose p(inside)
+queried (`inputs.query_keys`, exactly the training queries); R(O) = the queries whose p(inside)
 exceeds ``poco_threshold``. The network input is the centres of keys(O), clean, in the training
-frame (`training.normalise`), each with its unit direction to its camera for ``*_sv`` presets.
+frame (`inputs.normalise`), each with its unit direction to its camera for ``*_sv`` presets. What the
+network sees lives in `datagen.pipeline.refine.poco.inputs`, shared with training; this module never
+loads training code.
 
 Randomness (the input subset/repeats when |keys(O)| differs from the preset's point count, the
 quantized sampling of the encoder, and the optional fine-tuning draws) comes from the case's
@@ -30,8 +32,15 @@ import torch
 from datagen.pipeline.keys import key_centres, unpack_keys
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import RefineRequest
+from datagen.pipeline.refine.poco.inputs import (
+    choose_inputs,
+    forward_logits,
+    network_tensors,
+    observation_inputs,
+    predict_probs,
+    query_keys,
+)
 from datagen.pipeline.refine.poco.network import PocoModel
-from datagen.training.poco_train import choose_inputs, normalise, observation_inputs, predict_probs, query_keys
 from schemas.config import GenerationConfig
 
 BUILTIN_WEIGHTS = Path(str(resources.files("datagen"))) / "data" / "poco_small.pt"
@@ -104,19 +113,13 @@ class PocoRefiner:
         n = model.preset.num_input_points
         for _ in range(self.finetune_steps):
             pick = choose_inputs(inputs.shape[0], n, rng)
-            chosen = inputs[pick]
-            centre = chosen.mean(axis=0)
             half = FINETUNE_QUERIES // 2
             pos = inputs[rng.integers(0, inputs.shape[0], size=half)]
             neg = negatives[rng.integers(0, negatives.shape[0], size=half)] if negatives.size else pos[:0]
             q = np.concatenate([pos, neg])
             labels = torch.from_numpy(np.concatenate([np.ones(len(pos)), np.zeros(len(neg))]).astype(np.int64))[None]
-            points = torch.from_numpy(normalise(chosen, centre).T.copy())[None].to(self.device)
-            dirs = torch.from_numpy(np.ascontiguousarray(directions[pick].T, dtype=np.float32))[None].to(self.device)
-            qt = torch.from_numpy(normalise(q, centre).T.copy())[None].to(self.device)
-            tables = {k: v.to(self.device) for k, v in model.tables(points.cpu(), generator, queries=qt.cpu()).items()}
-            features = model.features(points, dirs if model.preset.uses_directions else None)
-            logits = model(points, features, tables, qt, tables["proj_indices"])
+            points, dirs, qt = network_tensors(inputs[pick], directions[pick], q)
+            logits = forward_logits(model, points, dirs, qt, generator, self.device)
             loss = torch.nn.functional.cross_entropy(logits, labels.to(self.device))
             optimizer.zero_grad()
             loss.backward()

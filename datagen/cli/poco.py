@@ -1,6 +1,6 @@
 """``datagen poco``: train our own POCO weights and evaluate the ``poco`` refiner.
 
-Register in ``datagen/cli/main.py`` with ``app.add_typer(poco_cmd.poco_app, name="poco")``.
+Plain functions; ``datagen/cli/main.py`` builds the ``poco`` group and registers them.
 """
 
 from __future__ import annotations
@@ -12,15 +12,7 @@ import typer
 
 from datagen.cli.common import console, user_errors
 
-poco_app = typer.Typer(help="Train and evaluate the POCO refiner's network.", no_args_is_help=True)
 
-
-@poco_app.callback()
-def poco_main() -> None:
-    """Train and evaluate the POCO refiner's network."""
-
-
-@poco_app.command("train")
 def poco_train(
     out: Annotated[Path, typer.Option("--out", help="Run folder: pool.npz, last.pt, best.pt, log.jsonl.")],
     steps: Annotated[int, typer.Option(help="Optimiser steps in all (a resumed run continues to this).")] = 1000,
@@ -72,7 +64,6 @@ def _parse_views(text: str | None) -> list[int] | None:
         raise typer.BadParameter(f"--views {text!r}: give view indices separated by commas, e.g. 0,4,8") from None
 
 
-@poco_app.command("eval")
 def poco_eval(
     objects: Annotated[Path, typer.Option("--objects", help="Objects file (watertight meshes are evaluated).")],
     weights: Annotated[str, typer.Option(help="Weights file, or 'builtin' (datagen/data/poco_small.pt).")] = "builtin",
@@ -168,7 +159,6 @@ def poco_eval(
         console.print(table)
 
 
-@poco_app.command("export")
 def poco_export(
     run: Annotated[Path, typer.Option("--run", help="Training run folder (best.pt, pool.npz).")],
     out: Annotated[Path, typer.Option("--out", help="Weights file to write (fp16 storage).")],
@@ -184,14 +174,9 @@ def poco_export(
     from rich.table import Table
 
     from datagen.pipeline.refine.poco.checkpoint import load_checkpoint
-    from datagen.training.poco_train import (
-        evaluate_pool,
-        export_weights,
-        load_pool,
-        split_pool,
-        threshold_metrics,
-        tune_threshold,
-    )
+    from datagen.training.poco_checkpoints import export_weights
+    from datagen.training.poco_samples import load_pool, split_pool
+    from datagen.training.poco_validation import evaluate_pool, threshold_metrics, tune_threshold
 
     with user_errors():
         torch.set_num_threads(threads)

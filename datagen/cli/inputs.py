@@ -1,0 +1,179 @@
+"""``datagen config show``, ``datagen objects builtins | show | synth`` and ``datagen scan``: a job's
+inputs (generation configs, objects files, built-in and synthetic shapes) and what each view sees.
+
+Plain functions; `datagen.cli.main` registers them.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+from rich.text import Text
+
+from datagen.cli.common import ConfigOption, console, user_errors
+from datagen.config_io import config_to_toml, load_config
+from datagen.errors import DatagenError
+from datagen.pipeline.thread_limits import single_threaded_blas
+
+
+def config_show(config: ConfigOption = None) -> None:
+    """Print the resolved generation config as TOML, with its hash."""
+    with user_errors():
+        resolved = load_config(config)
+        console.print(f"# config hash: {resolved.config_hash()}", markup=False, highlight=False)
+        console.print(config_to_toml(resolved), markup=False, highlight=False, end="")
+
+
+def objects_builtins() -> None:
+    """List the built-in shapes (use them as builtin:NAME in an objects file)."""
+    from datagen.shapes import builtins
+
+    table = Table("name", "family", "description", title="built-in shapes")
+    for name in builtins.builtin_names():
+        shape = builtins.get_builtin(name)
+        table.add_row(name, shape.family, shape.description)
+    console.print(table)
+
+
+def objects_show(
+    objects: Annotated[Path, typer.Argument(help="Objects file.")],
+    config: ConfigOption = None,
+) -> None:
+    """Resolve and prepare every line of an objects file; show each object or the line's error."""
+    from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
+    from datagen.pipeline.objects.prepare import prepare_object
+
+    with user_errors(), single_threaded_blas():
+        resolved = load_config(config)
+        listing = read_objects_file(objects)
+        table = Table("line", "name", "object id", "faces", "watertight", "units", "scale", "size m")
+        failures = 0
+        for entry in listing.entries:
+            if isinstance(entry, ObjectLineError):
+                failures += 1
+                table.add_row(str(entry.line), "-", Text(entry.message, style="red"), "", "", "", "", "")
+                continue
+            try:
+                prepared = prepare_object(entry, resolved)
+            except DatagenError as exc:
+                failures += 1
+                table.add_row(str(entry.line), entry.name, Text(str(exc), style="red"), "", "", "", "", "")
+                continue
+            table.add_row(
+                str(entry.line),
+                entry.name,
+                entry.object_id[:16],
+                str(len(prepared.faces)),
+                "yes" if prepared.watertight else "[yellow]no[/yellow]",
+                prepared.units_guessed,
+                f"{prepared.scale:.4g}",
+                f"{prepared.size:.4f}",
+            )
+        console.print(table)
+        console.print(f"{len(listing.entries) - failures} objects ready, {failures} with errors")
+        if failures:
+            raise typer.Exit(1)
+
+
+def objects_synth(
+    count: Annotated[int, typer.Option("--count", "-n", min=1, max=100_000, help="How many meshes.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for the meshes and objects.txt.")],
+    seed: Annotated[int, typer.Option("--seed", "-s", min=0, help="Same seed, same bytes.")] = 0,
+) -> None:
+    """Write N seeded, varied, watertight meshes and an objects file listing them."""
+    from datagen.shapes.synthetic import synthesize
+
+    with user_errors():
+        listing = synthesize(count, seed, out)
+        console.print(f"wrote {count} meshes and {listing}")
+
+
+def scan(
+    objects: Annotated[Path, typer.Option("--objects", "-o", help="Objects file.")],
+    config: ConfigOption = None,
+    rotations: Annotated[
+        str, typer.Option(help="'all' for every rotation of the config, or one rotation index.")
+    ] = "all",
+) -> None:
+    """Prepare, sample P_gt and image every task (object x rotation) from every view.
+
+    The most complete end-to-end run until ``datagen submit`` exists: it exercises steps 0-3 of
+    the pipeline on real objects and reports what each view sees.
+    """
+    from datagen.pipeline.objects.objects_file import read_objects_file
+    from datagen.pipeline.objects.prepare import prepare_object
+    from datagen.pipeline.scanning import scan_task
+    from datagen.pipeline.viewspace import build_view_space
+
+    with user_errors(), single_threaded_blas():
+        resolved = load_config(config)
+        view_space = build_view_space(resolved.view_space)
+        listing = read_objects_file(objects)
+        chosen = _rotations(rotations, resolved.rotations)
+        table = Table(
+            "object",
+            "rot",
+            "P_gt",
+            "union V",
+            "keys/view",
+            "only-1-view",
+            "rays",
+            "s",
+            title=f"{resolved.imaging} imaging, {view_space.count} views",
+        )
+        problems: list[str] = [str(error) for error in listing.errors]
+        started = time.perf_counter()
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+            console=console,
+            transient=True,
+        ) as progress:
+            bar = progress.add_task("scanning", total=len(listing.objects) * len(chosen))
+            for spec in listing.objects:
+                try:
+                    prepared = prepare_object(spec, resolved)
+                except DatagenError as exc:
+                    problems.append(f"{spec.origin}: {exc}")
+                    progress.advance(bar, len(chosen))
+                    continue
+                for rotation in chosen:
+                    progress.update(bar, description=f"{spec.name} r{rotation}")
+                    result = scan_task(prepared, rotation, resolved, view_space)
+                    visible = result.visible_keys()
+                    keys, counts = np.unique(np.concatenate(visible), return_counts=True)
+                    single = set(keys[counts == 1].tolist())
+                    table.add_row(
+                        spec.name,
+                        str(rotation),
+                        str(len(result.ground_truth)),
+                        str(keys.size),
+                        str(int(statistics.median(len(v) for v in visible))),
+                        str(int(statistics.median(len(single.intersection(v.tolist())) for v in visible))),
+                        str(result.rays_cast),
+                        f"{result.seconds:.2f}",
+                    )
+                    progress.advance(bar)
+        console.print(table)
+        console.print(f"{table.row_count} tasks in {time.perf_counter() - started:.1f} s")
+        for problem in problems:
+            console.print(Text("error: ", style="red") + Text(problem), highlight=False)
+        if problems:
+            raise typer.Exit(1)
+
+
+def _rotations(text: str, total: int) -> list[int]:
+    if text == "all":
+        return list(range(total))
+    if text.isdigit() and int(text) < total:
+        return [int(text)]
+    raise DatagenError(f"--rotations {text!r}: use 'all' or a rotation index 0..{total - 1}")

@@ -1,0 +1,218 @@
+"""``datagen submit | status | cancel | resume | serve``: jobs on the local or a remote Ray cluster.
+
+Plain functions over `datagen.api` and `datagen.engine.serve`; `datagen.cli.main` registers them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+from rich.text import Text
+
+from datagen.cli.common import console, error_console, user_errors
+from datagen.engine.driver import JobProgress, ProgressCallback
+from datagen.settings import RunSettings, default_home
+from jobs.ledger import DONE, Job
+from schemas.jobs import JobSpec
+
+HomeOption = Annotated[
+    Path | None,
+    typer.Option("--home", help="Ledger and default datasets folder (default: DATAGEN_HOME or ~/.datagen)."),
+]
+AddressOption = Annotated[
+    str | None, typer.Option("--address", help="Ray cluster address (default: RAY_ADDRESS, else a local Ray).")
+]
+WorkersOption = Annotated[int | None, typer.Option("--workers", min=1, help="Local Ray worker CPUs (default: all).")]
+
+
+GpusOption = Annotated[
+    float,
+    typer.Option(
+        "--refiner-gpus", min=0.0, max=1.0, help="GPU share per task; > 0 runs the poco refiner on CUDA (default 0)."
+    ),
+]
+
+
+def _settings(
+    home: Path | None,
+    out: str | None = None,
+    address: str | None = None,
+    workers: int | None = None,
+    refiner_gpus: float = 0.0,
+) -> RunSettings:
+    base = RunSettings()
+    return RunSettings(
+        home=home or default_home(),
+        out=out,
+        ray_address=address or base.ray_address,
+        num_workers=workers,
+        refiner_gpus=refiner_gpus,
+    )
+
+
+@contextmanager
+def _progress_display(title: str) -> Iterator[ProgressCallback]:
+    with Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[samples]} samples, {task.fields[failed]} failed"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    ) as progress:
+        bar = progress.add_task(title, total=None, samples=0, failed=0)
+
+        def update(state: JobProgress) -> None:
+            progress.update(
+                bar, total=state.total, completed=state.done + state.failed, samples=state.samples, failed=state.failed
+            )
+
+        yield update
+
+
+def _report(job: Job) -> None:
+    summary = job.summary or {}
+    colour = "green" if job.state == DONE else "red"
+    console.print(Text.assemble("job ", (job.job_id, "bold"), " ", (job.state, colour)))
+    if summary:
+        console.print(
+            f"{summary.get('done', 0)}/{summary.get('tasks', 0)} tasks done, {summary.get('samples', 0)} samples, "
+            f"{summary.get('failed', 0)} failed",
+            highlight=False,
+        )
+        for line in [*summary.get("line_errors", []), *summary.get("failures", [])]:
+            console.print(Text("error: ", style="red") + Text(str(line)), highlight=False)
+    console.print(Text("dataset: ") + Text(job.out, style="bold"), highlight=False)
+
+
+def submit(
+    objects: Annotated[Path, typer.Option("--objects", "-o", help="Objects file (one mesh or builtin:NAME per line).")],
+    config: Annotated[Path | None, typer.Option("--config", "-c", help="Generation config (TOML).")] = None,
+    out: Annotated[str | None, typer.Option("--out", help="Dataset URL (default: HOME/datasets/JOB).")] = None,
+    address: AddressOption = None,
+    detach: Annotated[bool, typer.Option("--detach", help="Only enqueue for a running 'datagen serve'.")] = False,
+    workers: WorkersOption = None,
+    refiner_gpus: GpusOption = 0.0,
+    home: HomeOption = None,
+) -> None:
+    """Create a dataset job and run it now with a live progress display (or enqueue it)."""
+    from datagen import api
+
+    with user_errors():
+        settings = _settings(home, out, address, workers, refiner_gpus)
+        job = api.enqueue(objects, config, settings)
+        tasks = JobSpec.model_validate(job.spec).tasks
+        console.print(
+            f"job {job.job_id}: {len(tasks)} tasks -> {job.out}",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
+        if detach:
+            console.print("queued; a running 'datagen serve' on this ledger will take it")
+            return
+        with _progress_display("tasks") as update:
+            job = api.resume(job.job_id, settings, progress=update)
+        _report(job)
+        if job.state != DONE:
+            raise typer.Exit(1)
+
+
+def resume(
+    job_id: Annotated[str, typer.Argument(help="Job id (see 'datagen status').")],
+    address: AddressOption = None,
+    workers: WorkersOption = None,
+    refiner_gpus: GpusOption = 0.0,
+    home: HomeOption = None,
+) -> None:
+    """Run what is not done of a job again; committed tasks are kept, never recomputed."""
+    from datagen import api
+
+    with user_errors():
+        settings = _settings(home, None, address, workers, refiner_gpus)
+        with _progress_display("tasks") as update:
+            job = api.resume(job_id, settings, progress=update)
+        _report(job)
+        if job.state != DONE:
+            raise typer.Exit(1)
+
+
+def status(
+    job_id: Annotated[str | None, typer.Argument(help="Job id; all jobs when omitted.")] = None,
+    home: HomeOption = None,
+) -> None:
+    """Jobs and their task counts (one job: every task)."""
+    from datagen import api
+
+    with user_errors():
+        settings = _settings(home)
+        jobs = api.status(job_id, settings)
+        ledger = api.ledger_for(settings)
+        try:
+            table = Table("job", "state", "tasks", "done", "failed", "running", "dataset")
+            for job in jobs:
+                counts = ledger.task_counts(job.job_id)
+                table.add_row(
+                    job.job_id,
+                    job.state,
+                    str(sum(counts.values())),
+                    str(counts.get("done", 0)),
+                    str(counts.get("failed", 0)),
+                    str(counts.get("running", 0)),
+                    job.out,
+                )
+            console.print(table)
+            if job_id:
+                tasks = Table("task", "state", "attempts", "samples", "placement", "error")
+                for task in ledger.tasks(job_id):
+                    tasks.add_row(
+                        task.task_id,
+                        task.state,
+                        str(task.attempts),
+                        str(task.samples or ""),
+                        task.placement or "",
+                        Text(task.error or "", style="red"),
+                    )
+                console.print(tasks)
+        finally:
+            ledger.close()
+
+
+def cancel(
+    job_id: Annotated[str, typer.Argument(help="Job id.")],
+    home: HomeOption = None,
+) -> None:
+    """Stop a job: running tasks are cancelled, committed shards stay readable."""
+    from datagen import api
+
+    with user_errors():
+        job = api.cancel(job_id, _settings(home))
+        console.print(f"job {job.job_id}: {job.state}", highlight=False)
+
+
+def serve(
+    address: AddressOption = None,
+    workers: WorkersOption = None,
+    refiner_gpus: GpusOption = 0.0,
+    home: HomeOption = None,
+    poll: Annotated[float, typer.Option(help="Seconds between looks at the queue.")] = 2.0,
+    once: Annotated[bool, typer.Option("--once", help="Exit when the queue is empty.")] = False,
+) -> None:
+    """A long-running driver: takes queued jobs in order and runs them (several may share a ledger)."""
+    from datagen.engine.serve import serve as serve_loop
+
+    with user_errors():
+        serve_loop(
+            _settings(home, None, address, workers, refiner_gpus),
+            poll=poll,
+            once=once,
+            report=lambda line: console.print(line, highlight=False),
+            error=lambda line: error_console.print(line, markup=False, highlight=False),
+        )

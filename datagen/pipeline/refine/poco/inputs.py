@@ -1,0 +1,148 @@
+"""What the POCO network sees, shared by the refiner and by training (`datagen.training`).
+
+- **Inputs** (`observation_inputs`): the centres of keys(O), clean, each with the unit direction to
+  the camera of the first observed point in its key (used by the ``*_sv`` presets).
+- **Input points** (`choose_inputs`): exactly the preset's ``num_input_points``: a random subset when
+  there are more, else all of them plus random repeats, so the point density matches training.
+- **Frame** (`normalise`): centred on the mean of the chosen input points and divided by
+  ``TRAINING_SCALE`` metres; `network_tensors` builds the (1, 3, n) tensors of one observation.
+- **Queries** (`query_keys`): the band keys of O minus keys(O) minus the keys some view saw empty.
+- **Running the network**: `forward_logits` (the differentiable forward used by training and
+  test-time fine-tuning) and `predict_probs` (p(inside) of each query, chunked, without gradients).
+
+Everything here is inference-side: it imports the pipeline and torch, never training code or trimesh.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+import torch
+from torch import Tensor
+
+from datagen.pipeline.imaging import Observation
+from datagen.pipeline.keys import key_centres, points_to_packed, unpack_keys
+from datagen.pipeline.refine.base import band_keys
+from datagen.pipeline.refine.freespace import sensor_empty
+from datagen.pipeline.refine.poco.network import PocoModel
+from schemas.config import GenerationConfig
+
+TRAINING_SCALE = 0.05
+"""Metres per network unit: inputs are centred on their mean and divided by this."""
+DECODE_CHUNK = 8192
+"""Queries decoded at once by `predict_probs` (bounds memory on large bands)."""
+
+
+def observation_inputs(
+    observation: Observation, voxel_size: float, grid_offset: tuple[float, float, float]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Centres of keys(O) and, per key, the unit direction to the camera of the first point in it."""
+    keys = observation.keys
+    centres = key_centres(unpack_keys(keys), voxel_size, grid_offset)
+    point_keys = points_to_packed(observation.points.astype(np.float64), voxel_size, grid_offset)
+    origins = observation.point_origins()
+    index = np.searchsorted(keys, point_keys)
+    index = np.clip(index, 0, max(keys.size - 1, 0))
+    found = keys[index] == point_keys if keys.size else np.zeros(0, dtype=bool)
+    origin_of = np.full((keys.size, 3), np.nan)
+    rows = np.flatnonzero(found)[::-1]  # reversed so the first point of each key is written last
+    origin_of[index[rows]] = origins[rows]
+    missing = np.isnan(origin_of[:, 0])
+    if missing.any():  # a key with no hit point in it (should not happen): its nearest view's origin
+        origin_of[missing] = observation.origins[0]
+    directions = np.asarray(origin_of - centres, dtype=np.float64)
+    directions /= np.maximum(np.linalg.norm(directions, axis=1, keepdims=True), 1e-12)
+    return np.asarray(centres, dtype=np.float64), directions
+
+
+def choose_inputs(count: int, n: int, rng: np.random.Generator) -> npt.NDArray[np.int64]:
+    """Exactly ``n`` row indices of ``count`` points: a subset when more, all plus repeats when fewer."""
+    if count >= n:
+        return np.sort(rng.choice(count, size=n, replace=False))
+    extra = rng.integers(0, count, size=n - count)
+    return np.concatenate([np.arange(count), np.sort(extra)])
+
+
+def normalise(points: npt.NDArray[np.float64], centre: npt.NDArray[np.float64]) -> npt.NDArray[np.float32]:
+    """Points (metres) in the network frame around ``centre``."""
+    return ((points - centre) / TRAINING_SCALE).astype(np.float32)
+
+
+def query_keys(
+    observation: Observation, config: GenerationConfig
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+    """(unknown, queries, empty): band minus keys(O); those not sensor-empty; the sensor-empty mask."""
+    band = band_keys(observation.keys, config.band_keys_sq)
+    unknown = np.setdiff1d(band, observation.keys, assume_unique=True)
+    empty = sensor_empty(unknown, observation, config.camera, config.voxel_size, config.grid_offset)
+    return unknown, unknown[~empty], empty
+
+
+def network_tensors(
+    chosen: npt.NDArray[Any], directions: npt.NDArray[Any], queries: npt.NDArray[Any]
+) -> tuple[Tensor, Tensor, Tensor]:
+    """(points, directions, queries) of one observation as (1, 3, n) CPU tensors in the network frame.
+
+    ``chosen`` are the input points picked by `choose_inputs` (metres), ``directions`` theirs; the
+    frame is centred on the mean of ``chosen``.
+    """
+    chosen = chosen.astype(np.float64)
+    centre = chosen.mean(axis=0)
+    points = torch.from_numpy(normalise(chosen, centre).T.copy())[None]
+    dirs = torch.from_numpy(np.ascontiguousarray(directions.T, dtype=np.float32))[None]
+    q = torch.from_numpy(normalise(queries.astype(np.float64), centre).T.copy())[None]
+    return points, dirs, q
+
+
+def _on_device(
+    model: PocoModel,
+    points: Tensor,
+    directions: Tensor,
+    queries: Tensor,
+    generator: torch.Generator,
+    device: torch.device | str,
+) -> tuple[Tensor, Tensor, dict[str, Tensor], Tensor]:
+    """(points, features, tables, queries) on ``device``; the neighbour tables are built on the CPU."""
+    tables = model.tables(points.cpu(), generator, queries=queries.cpu())
+    tables = {k: v.to(device) for k, v in tables.items()}
+    points, directions, queries = points.to(device), directions.to(device), queries.to(device)
+    features = model.features(points, directions if model.preset.uses_directions else None)
+    return points, features, tables, queries
+
+
+def forward_logits(
+    model: PocoModel,
+    points: Tensor,
+    directions: Tensor,
+    queries: Tensor,
+    generator: torch.Generator,
+    device: torch.device | str,
+) -> Tensor:
+    """Logits (B, 2, M) of the queries in one differentiable forward (training, test-time fine-tuning)."""
+    points, features, tables, queries = _on_device(model, points, directions, queries, generator, device)
+    logits: Tensor = model(points, features, tables, queries, tables["proj_indices"])
+    return logits
+
+
+def predict_probs(
+    model: PocoModel,
+    inputs: npt.NDArray[Any],
+    directions: npt.NDArray[Any],
+    queries: npt.NDArray[Any],
+    rng: np.random.Generator,
+    generator: torch.Generator,
+    device: torch.device | str,
+) -> npt.NDArray[np.float32]:
+    """p(inside) of each query (metres) given the observed key centres (metres), one observation."""
+    if queries.shape[0] == 0:
+        return np.zeros(0, dtype=np.float32)
+    pick = choose_inputs(inputs.shape[0], model.preset.num_input_points, rng)
+    points, dirs, q = network_tensors(inputs[pick], directions[pick], queries)
+    with torch.no_grad():
+        points, features, tables, q = _on_device(model, points, dirs, q, generator, device)
+        latents = model.encode(points, features, tables)
+        logits = model.decode(latents, points, q, tables["proj_indices"], chunk_size=DECODE_CHUNK)
+        prob = torch.softmax(logits.float(), dim=1)[0, 1]
+    return prob.cpu().numpy().astype(np.float32)
