@@ -1,8 +1,9 @@
 """Benchmark: how fast a training job can read a dataset, next to a raw numpy memmap of the same clouds.
 
-    python benchmarks/reader.py [--out DIR] [--rotations 3] [--processes 2] [--seconds 20] [--profile]
+    python benchmarks/reader.py [--out DIR] [--rotations 3] [--processes 2] [--seconds 20] [--repeats 3]
+                                [--profile]
 
-The dataset holds every built-in of ``examples/builtin.txt`` (refiner none, the default config with
+The dataset holds every built-in of ``examples/builtin.txt`` (the default config, refiner poco, with
 ``rotations`` lowered from 8 to 3 to keep the build within a few minutes; printed). The build is
 dominated by labelling torus_knot_3_5 (70-80 s a task on a loaded 2-core machine): 4 rotations took
 about 5 minutes with 2 processes (3: an estimated 4). It is built into DIR, or
@@ -20,9 +21,17 @@ Measured in one run, each for about ``--seconds`` (or one pass over the dataset,
   the masks from an in-memory array;
 
 and the ratio of each to the memmap rate. A diagnostic row repeats the DataLoader path with a sampler
-sampler mixing 1 shard at a time instead of the default 4. ``--profile`` adds a cProfile
-of a worker-equivalent loop (``OSVPDataset.__getitem__`` in `ShardShuffleSampler` order plus default
-collation, one process), with the default mix and with the diagnostic one.
+mixing 1 shard at a time instead of the default 4.
+
+The integrity checks readers make (each shard verified whole, every array and chunk file, the
+first time a dataset reads from it; the finalised index checked against the commit records on
+open) are measured against a baseline in the same run: the random, shuffled and DataLoader paths
+run with ``Dataset._integrity_checks`` on and off (a private switch for this benchmark only),
+alternately ``--repeats`` times, and the table shows the best rate of each and their ratio. The
+checks' own time is shown too: ``ShardReader.verify`` per shard (and spread over its samples), and
+the open-time index check. ``--profile`` adds a cProfile of a worker-equivalent loop
+(``OSVPDataset.__getitem__`` in `ShardShuffleSampler` order plus default collation, one process),
+with the default mix and with the diagnostic one.
 Target: >= 5,000 samples/s for the DataLoader path.
 """
 
@@ -60,13 +69,16 @@ from datagen.pipeline.viewspace import build_view_space  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 from schemas.dataset import DATASET_FILE, DatasetInfo  # noqa: E402
 from storage import (  # noqa: E402
+    Dataset,
     ShardReader,
+    committed_tasks,
     finalise,
     init_dataset,
     open_dataset,
     open_location,
     write_task,
 )
+from storage.index import coverage_disagreements, read_coverage, row_count_disagreements  # noqa: E402
 from storage.reader import SHARD_CACHE  # noqa: E402
 from storage.torch import OSVPDataset, ShardShuffleSampler  # noqa: E402
 
@@ -117,7 +129,7 @@ def build(url: str, rotations: int, processes: int) -> None:
     jobs = [(i, r, config, url) for i in order for r in range(rotations)]
     print(
         f"building {len(specs)} built-ins x {rotations} rotations = {len(jobs)} tasks "
-        f"(refiner none, default config but rotations={rotations}, {processes} processes) into {url}",
+        f"(default config, refiner {config.refiner}, but rotations={rotations}, {processes} processes) into {url}",
         flush=True,
     )
     started = time.perf_counter()
@@ -143,8 +155,15 @@ def rate(count: int, seconds: float) -> float:
     return count / seconds if seconds > 0 else float("inf")
 
 
-def random_access(url: str, budget: float, seed: int) -> tuple[float, int]:
+def open_for_reading(url: str, checks: bool) -> Dataset:
+    """A fresh dataset; ``checks=False`` skips the per-shard verification (the baseline)."""
     dataset = open_dataset(url)
+    dataset._integrity_checks = checks
+    return dataset
+
+
+def random_access(url: str, budget: float, seed: int, checks: bool = True) -> tuple[float, int]:
+    dataset = open_for_reading(url, checks)
     order = np.random.default_rng(seed).permutation(len(dataset))
     started = time.perf_counter()
     count = 0
@@ -156,8 +175,8 @@ def random_access(url: str, budget: float, seed: int) -> tuple[float, int]:
     return rate(count, time.perf_counter() - started), count
 
 
-def shuffled_iteration(url: str, budget: float, seed: int) -> tuple[float, int]:
-    dataset = open_dataset(url)
+def shuffled_iteration(url: str, budget: float, seed: int, checks: bool = True) -> tuple[float, int]:
+    dataset = open_for_reading(url, checks)
     started = time.perf_counter()
     count = 0
     for _ in dataset.iter_shuffled(seed=seed):
@@ -168,11 +187,12 @@ def shuffled_iteration(url: str, budget: float, seed: int) -> tuple[float, int]:
 
 
 def dataloader(
-    url: str, budget: float, seed: int, mix: int | None = None
+    url: str, budget: float, seed: int, mix: int | None = None, checks: bool = True
 ) -> tuple[float, float, int, np.ndarray, np.ndarray, np.ndarray]:
     """(rate with start-up, rate after the first batch, samples, clouds, masks, indices) of one epoch
     (``mix``: shards the sampler mixes at a time; None for its default)."""
     dataset = OSVPDataset(url, num_points=NUM_POINTS, seed=seed)
+    dataset.dataset._integrity_checks = checks  # pickled with the dataset into each worker
     sampler = (
         ShardShuffleSampler(dataset, seed=seed) if mix is None else ShardShuffleSampler(dataset, seed, shards_mixed=mix)
     )
@@ -198,6 +218,55 @@ def dataloader(
     indices = np.concatenate(seen)
     first = len(seen[0])
     return rate(count, ended - started), rate(count - first, ended - first_batch), count, clouds, masks, indices
+
+
+CHECKED_PATHS = ("random ds[i] (fresh dataset)", "iter_shuffled", "DataLoader, after 1st batch")
+
+
+def check_cost(url: str, budget: float, seed: int, repeats: int) -> dict[str, tuple[float, float]]:
+    """Best rate of each path with the checks (on, off), measured alternately so that drift in the
+    machine's load hits both alike."""
+    best: dict[str, list[float]] = {name: [0.0, 0.0] for name in CHECKED_PATHS}
+    for repeat in range(repeats):
+        for checks in (True, False) if repeat % 2 == 0 else (False, True):
+            column = 0 if checks else 1
+            rates = (
+                random_access(url, budget, seed, checks)[0],
+                shuffled_iteration(url, budget, seed, checks)[0],
+                dataloader(url, budget, seed, checks=checks)[1],
+            )
+            for name, value in zip(CHECKED_PATHS, rates, strict=True):
+                best[name][column] = max(best[name][column], value)
+    return {name: (on, off) for name, (on, off) in best.items()}
+
+
+def verify_cost(url: str) -> tuple[float, float]:
+    """(ms per shard, µs per sample) of `ShardReader.verify` on fresh readers of every shard."""
+    dataset = open_dataset(url)
+    shards = sorted(set(dataset.index.column("shard").to_pylist()))
+    readers = [ShardReader(dataset.location, shard, verify=False) for shard in shards]
+    started = time.perf_counter()
+    for reader in readers:
+        reader.verify()
+    seconds = time.perf_counter() - started
+    return 1000 * seconds / len(shards), 1e6 * seconds / len(dataset)
+
+
+def open_check_cost(url: str, repeats: int = 5) -> tuple[float, float]:
+    """(ms to open the dataset, ms of that spent checking the index against the commit records),
+    best of ``repeats``."""
+    opens, checks = [], []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        dataset = open_dataset(url)
+        opens.append(time.perf_counter() - started)
+        commits = committed_tasks(dataset.location)
+        started = time.perf_counter()
+        list(row_count_disagreements(dataset.index, commits))
+        coverage = read_coverage(dataset.location) or {}
+        list(coverage_disagreements(coverage, commits))
+        checks.append(time.perf_counter() - started)
+    return 1000 * min(opens), 1000 * min(checks)
 
 
 def memmap_baseline(folder: Path, clouds: np.ndarray, masks: np.ndarray, budget: float, seed: int) -> float:
@@ -264,6 +333,7 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="time budget per measurement")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--profile", action="store_true", help="cProfile a worker-equivalent loop")
+    parser.add_argument("--repeats", type=int, default=3, help="alternating runs per integrity-check row")
     args = parser.parse_args()
 
     scratch = Path(tempfile.mkdtemp(prefix="reader_bench_"))
@@ -291,6 +361,9 @@ def main() -> None:
         shuffled_rate, shuffled_count = shuffled_iteration(url, args.seconds, args.seed)
         memmap_rate = memmap_baseline(scratch, clouds, masks, args.seconds, args.seed)
         small_buffer = dataloader(url, args.seconds, args.seed, mix=DIAGNOSTIC_MIX)
+        checks = check_cost(url, args.seconds, args.seed, args.repeats)
+        shard_ms, sample_us = verify_cost(url)
+        open_ms, open_check_ms = open_check_cost(url)
 
         rows = [
             ("random ds[i] (fresh dataset)", random_rate, random_count),
@@ -304,6 +377,14 @@ def main() -> None:
         for name, value, count in rows:
             shown = str(count) if count else "-"
             print(f"{name:44s} {value:12,.0f} {shown:>8s} {value / memmap_rate:10.4f}")
+        print(f"\nintegrity checks, best of {args.repeats} alternating runs each (samples/s):")
+        print(f"{'path':44s} {'checks on':>12s} {'off (base)':>12s} {'on / off':>10s}")
+        for name, (on, off) in checks.items():
+            print(f"{name:44s} {on:12,.0f} {off:12,.0f} {on / off:10.3f}")
+        print(
+            f"ShardReader.verify: {shard_ms:.2f} ms per shard, {sample_us:.1f} us per sample spread over its shard; "
+            f"open_dataset: {open_ms:.1f} ms, of which {open_check_ms:.2f} ms check the index (best of 5)"
+        )
         verdict = "meets" if steady_rate >= 5000 else "MISSES"
         print(f"\nDataLoader target >= 5,000 samples/s: {verdict} ({steady_rate:,.0f}/s after the first batch)")
         if args.profile:

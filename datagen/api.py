@@ -60,7 +60,11 @@ def resume(
     progress: ProgressCallback | None = None,
     storage_options: dict[str, Any] | None = None,
 ) -> Job:
-    """Run what is not done of a job; finished tasks are kept, never recomputed."""
+    """Run what is not done of a job; finished tasks are kept, never recomputed.
+
+    Tasks a live driver still runs (another `submit`, `resume` or `serve` on this job) stay with it:
+    this call shares the rest of the work, waits for the job's end and returns it finished, with a
+    summary counting the whole dataset (`datagen.engine.driver.run_job`)."""
     settings = settings or RunSettings()
     ledger = ledger_for(settings)
     try:

@@ -8,11 +8,15 @@ from jobs.ledger import (
     PENDING,
     RUNNING,
     Claim,
+    Driver,
+    Holders,
     Job,
     Ledger,
     LedgerError,
+    LostDriver,
     Task,
 )
+from jobs.liveness import ProcessIdentity, process_alive, process_identity
 
 __all__ = [
     "CANCELLED",
@@ -22,8 +26,14 @@ __all__ = [
     "PENDING",
     "RUNNING",
     "Claim",
+    "Driver",
+    "Holders",
     "Job",
     "Ledger",
     "LedgerError",
+    "LostDriver",
+    "ProcessIdentity",
     "Task",
+    "process_alive",
+    "process_identity",
 ]

@@ -5,6 +5,13 @@ holds a lease (owner, expiry); a task whose lease expired (its driver died) can 
 with a new attempt id. Transitions are idempotent and conditional (a late report from an old
 attempt cannot overwrite a newer one), and every multi-row change runs in one ``BEGIN IMMEDIATE``
 transaction, so several processes can share one ledger file.
+
+Liveness: each driver working on a job is recorded in ``drivers`` (its lease-owner name, host,
+machine, PID, process start time) with a heartbeat it renews together with its leases, and leaves
+(`leave`) when it stops. A driver is *lost* when its process is gone (decided at once on the same
+machine, `jobs.liveness`) or, elsewhere, when it has not renewed its heartbeat for a lease period.
+A lost driver's tasks can be claimed at once, without waiting for its leases to expire; `lost_driver`
+tells `datagen status` that a running job has no live driver left.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from jobs.liveness import ProcessIdentity, process_alive, process_identity
 from schemas.errors import DatagenError
 
 PENDING, RUNNING, DONE, FAILED, CANCELLED = "pending", "running", "done", "failed", "cancelled"
@@ -52,7 +60,22 @@ CREATE TABLE IF NOT EXISTS tasks (
     PRIMARY KEY (job_id, task_id)
 );
 CREATE INDEX IF NOT EXISTS tasks_by_state ON tasks (job_id, state, position);
+CREATE TABLE IF NOT EXISTS drivers (
+    driver_id TEXT PRIMARY KEY,
+    job_id TEXT NOT NULL,
+    host TEXT NOT NULL,
+    machine TEXT NOT NULL,
+    pid INTEGER NOT NULL,
+    process_start TEXT NOT NULL,
+    started REAL NOT NULL,
+    heartbeat REAL NOT NULL,
+    lease REAL NOT NULL
+);
+CREATE INDEX IF NOT EXISTS drivers_by_job ON drivers (job_id);
 """
+
+DEFAULT_LEASE = 120.0
+"""Seconds a driver's leases (and heartbeat) stay valid without renewal, unless it says otherwise."""
 
 
 class LedgerError(DatagenError):
@@ -85,6 +108,57 @@ class Task:
     error: str | None
     placement: str | None
     samples: int | None
+
+
+@dataclass(frozen=True)
+class Driver:
+    """A driver process working on a job, as recorded when it started and at its last heartbeat."""
+
+    driver_id: str
+    """The name it holds leases under (``Task.lease_owner``)."""
+    job_id: str
+    process: ProcessIdentity
+    started: float
+    heartbeat: float
+    """Wall-clock time it last renewed its leases."""
+    lease: float
+    """Seconds its leases last without renewal: silent longer than this, it is lost."""
+
+    def lost(self, now: float | None = None) -> bool:
+        """Gone: its process is dead (same machine, known at once), or silent for a lease period."""
+        alive = process_alive(self.process)
+        if alive is not None:
+            return not alive
+        return (time.time() if now is None else now) - self.heartbeat > self.lease
+
+    def describe(self) -> str:
+        """``pid 123 on host``, for messages."""
+        return f"pid {self.process.pid} on {self.process.host}"
+
+
+@dataclass(frozen=True)
+class LostDriver:
+    """A running job none of whose drivers is alive (see `Ledger.lost_driver`)."""
+
+    since: float
+    """When it was last heard from (its last heartbeat, else when its last lease lapsed)."""
+    driver: Driver | None
+    """The driver heard from last, when the ledger knows it."""
+
+
+@dataclass(frozen=True)
+class Holders:
+    """Why a driver can take nothing of a job now: other drivers hold every unfinished task."""
+
+    tasks: int
+    """Running tasks held under live leases by others."""
+    live: list[Driver]
+    """Drivers of this machine seen alive that hold some of them (they will finish them)."""
+    unknown: list[str]
+    """Holders whose liveness this machine cannot see (another machine, or no driver record):
+    their leases decide."""
+    until: float
+    """When the last of those leases lapses unless renewed."""
 
 
 @dataclass(frozen=True)
@@ -183,13 +257,68 @@ class Ledger:
         rows = self._db.execute("SELECT * FROM jobs WHERE state IN (?, ?) ORDER BY created, job_id", (PENDING, RUNNING))
         return [_job(r) for r in rows]
 
-    def start_job(self, job_id: str, owner: str) -> Job:
+    def start_job(
+        self, job_id: str, owner: str, lease: float = DEFAULT_LEASE, process: ProcessIdentity | None = None
+    ) -> Job:
+        """Mark a pending or running job running and record ``owner`` as one of its drivers (this
+        process unless ``process`` says otherwise), with a heartbeat valid for ``lease`` seconds."""
+        process = process or process_identity()
+        now = time.time()
+        with self._transaction() as db:
+            started = db.execute(
+                "UPDATE jobs SET state = ?, owner = ?, updated = ? WHERE job_id = ? AND state IN (?, ?)",
+                (RUNNING, owner, now, job_id, PENDING, RUNNING),
+            ).rowcount
+            if started:
+                db.execute(
+                    "INSERT OR REPLACE INTO drivers (driver_id, job_id, host, machine, pid, process_start, started, "
+                    "heartbeat, lease) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                    (owner, job_id, process.host, process.machine, process.pid, process.start, now, now, lease),
+                )
+        return self.job(job_id)
+
+    def leave(self, job_id: str, owner: str) -> None:
+        """A driver stops working on a job: tasks it still holds become pending again, its record
+        goes, and a running job no other live driver works on becomes pending (queued for anyone)."""
+        now = time.time()
         with self._transaction() as db:
             db.execute(
-                "UPDATE jobs SET state = ?, owner = ?, updated = ? WHERE job_id = ? AND state IN (?, ?)",
-                (RUNNING, owner, time.time(), job_id, PENDING, RUNNING),
+                "UPDATE tasks SET state = ?, lease_owner = NULL, lease_expires = NULL, updated = ? "
+                "WHERE job_id = ? AND lease_owner = ? AND state = ?",
+                (PENDING, now, job_id, owner, RUNNING),
             )
-        return self.job(job_id)
+            db.execute("DELETE FROM drivers WHERE driver_id = ?", (owner,))
+            others = [_driver(r) for r in db.execute("SELECT * FROM drivers WHERE job_id = ?", (job_id,))]
+            if not any(not d.lost(now) for d in others):
+                db.execute(
+                    "UPDATE jobs SET state = ?, owner = NULL, updated = ? WHERE job_id = ? AND state = ?",
+                    (PENDING, now, job_id, RUNNING),
+                )
+
+    def drivers(self, job_id: str) -> list[Driver]:
+        """The drivers recorded on a job (alive or lost), oldest first."""
+        rows = self._db.execute("SELECT * FROM drivers WHERE job_id = ? ORDER BY started, driver_id", (job_id,))
+        return [_driver(r) for r in rows]
+
+    def lost_driver(self, job_id: str) -> LostDriver | None:
+        """For a running job that no live driver works on (its drivers died, or every lease held on
+        it lapsed): when it was last heard from. None for a job in any other state or still driven."""
+        job = self.job(job_id)
+        if job.state != RUNNING:
+            return None
+        now = time.time()
+        drivers = self.drivers(job_id)
+        if any(not d.lost(now) for d in drivers):
+            return None
+        known = {d.driver_id for d in drivers}
+        running = [t for t in self.tasks(job_id) if t.state == RUNNING]
+        if any(t.lease_owner not in known and (t.lease_expires or 0.0) >= now for t in running):
+            return None  # a holder this ledger has no record of, under a live lease
+        if drivers:
+            last = max(drivers, key=lambda d: d.heartbeat)
+            return LostDriver(since=last.heartbeat, driver=last)
+        lapsed = [t.lease_expires for t in running if t.lease_expires is not None]
+        return LostDriver(since=max(lapsed) if lapsed else job.updated, driver=None)
 
     def finish_job(self, job_id: str, summary: dict[str, Any], other_failures: int = 0) -> Job:
         """done when every task is done, failed when any failed (or ``other_failures``, such as
@@ -206,9 +335,16 @@ class Ledger:
         return self.job(job_id)
 
     def fail_job(self, job_id: str, message: str) -> Job:
-        """A job that cannot run at all (its output is unusable, say): failed, with the reason."""
+        """A job that cannot run at all (its output is unusable, say): failed, with the reason.
+
+        Not while another driver of this job is alive (a `resume` that cannot start beside a
+        running driver, say): that driver runs it, and its outcome decides the job's state."""
         self.job(job_id)
+        now = time.time()
         with self._transaction() as db:
+            drivers = [_driver(r) for r in db.execute("SELECT * FROM drivers WHERE job_id = ?", (job_id,))]
+            if any(not d.lost(now) for d in drivers):
+                return self.job(job_id)
             db.execute(
                 "UPDATE jobs SET state = ?, summary = ?, updated = ?, owner = NULL WHERE job_id = ?",
                 (FAILED, json.dumps({"error": message}, sort_keys=True), time.time(), job_id),
@@ -231,16 +367,28 @@ class Ledger:
         return self.job(job_id)
 
     def reopen_job(self, job_id: str) -> Job:
-        """For resume: tasks not done become pending again (attempt counts kept)."""
+        """For resume: tasks not done become pending again (attempt counts kept), except those a live
+        driver still runs (its record says so); lost drivers' records go. A task held by an owner
+        the ledger has no record of is taken back at once, whatever its lease says."""
         self.job(job_id)
         now = time.time()
         with self._transaction() as db:
+            drivers = [_driver(r) for r in db.execute("SELECT * FROM drivers WHERE job_id = ?", (job_id,))]
+            live = [d.driver_id for d in drivers if not d.lost(now)]
+            for driver in drivers:
+                if driver.driver_id not in live:
+                    db.execute("DELETE FROM drivers WHERE driver_id = ?", (driver.driver_id,))
+            marks = ", ".join("?" for _ in live)
+            held_by_live = f" AND NOT (state = ? AND lease_owner IN ({marks}))" if live else ""
             db.execute(
                 "UPDATE tasks SET state = ?, lease_owner = NULL, lease_expires = NULL, updated = ? "
-                "WHERE job_id = ? AND state != ?",
-                (PENDING, now, job_id, DONE),
+                f"WHERE job_id = ? AND state != ?{held_by_live}",
+                (PENDING, now, job_id, DONE, *([RUNNING, *live] if live else [])),
             )
-            db.execute("UPDATE jobs SET state = ?, updated = ? WHERE job_id = ?", (PENDING, now, job_id))
+            db.execute(
+                "UPDATE jobs SET state = ?, updated = ? WHERE job_id = ? AND NOT (state = ? AND ?)",
+                (PENDING, now, job_id, RUNNING, bool(live)),
+            )
         return self.job(job_id)
 
     # -- tasks --------------------------------------------------------------------------------
@@ -258,18 +406,18 @@ class Ledger:
         return {r["state"]: int(r["n"]) for r in rows}
 
     def claim(self, job_id: str, owner: str, lease: float, limit: int = 1) -> list[Claim]:
-        """Up to ``limit`` runnable tasks (pending, or running with an expired lease), in order,
-        each with a fresh attempt id and a lease for ``owner``."""
+        """Up to ``limit`` runnable tasks (pending, running with an expired lease, or running under
+        a lost driver), in order, each with a fresh attempt id and a lease for ``owner``."""
         now = time.time()
         claims: list[Claim] = []
         with self._transaction() as db:
             job = db.execute("SELECT state FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
             if job is None or job["state"] in (CANCELLED, DONE, FAILED):
                 return []
+            condition, params = self._runnable(db, job_id, now)
             rows = db.execute(
-                "SELECT * FROM tasks WHERE job_id = ? AND (state = ? OR (state = ? AND lease_expires < ?)) "
-                "ORDER BY position LIMIT ?",
-                (job_id, PENDING, RUNNING, now, limit),
+                f"SELECT * FROM tasks WHERE job_id = ? AND {condition} ORDER BY position LIMIT ?",
+                (job_id, *params, limit),
             ).fetchall()
             for row in rows:
                 attempt_id = f"a{int(row['attempts']) + 1}-{uuid.uuid4().hex[:12]}"
@@ -284,12 +432,71 @@ class Ledger:
                 claims.append(Claim(task=_task(updated), attempt_id=attempt_id))
         return claims
 
-    def renew(self, job_id: str, owner: str, lease: float) -> None:
-        """Extend every lease this owner holds in a job (called periodically by a live driver)."""
-        self._db.execute(
-            "UPDATE tasks SET lease_expires = ? WHERE job_id = ? AND lease_owner = ? AND state = ?",
-            (time.time() + lease, job_id, owner, RUNNING),
+    def claimable(self, job_id: str) -> int:
+        """How many tasks `claim` would hand out now (ignoring the job's state)."""
+        condition, params = self._runnable(self._db, job_id, time.time())
+        row = self._db.execute(f"SELECT COUNT(*) AS n FROM tasks WHERE job_id = ? AND {condition}", (job_id, *params))
+        return int(row.fetchone()["n"])
+
+    def holders(self, job_id: str) -> Holders | None:
+        """Who holds a job's unfinished tasks when a driver can claim none of them (None when some
+        task is claimable, or none is running)."""
+        if self.claimable(job_id):
+            return None
+        now = time.time()
+        running = [t for t in self.tasks(job_id) if t.state == RUNNING]
+        if not running:
+            return None
+        drivers = {d.driver_id: d for d in self.drivers(job_id)}
+        live: dict[str, Driver] = {}
+        unknown: dict[str, float] = {}
+        for task in running:
+            owner = task.lease_owner or "?"
+            driver = drivers.get(owner)
+            if driver is not None and process_alive(driver.process):
+                live[owner] = driver
+            else:
+                unknown[owner] = max(unknown.get(owner, 0.0), task.lease_expires or now)
+        return Holders(
+            tasks=len(running),
+            live=list(live.values()),
+            unknown=sorted(unknown),
+            until=max(unknown.values(), default=now),
         )
+
+    def _runnable(self, db: sqlite3.Connection, job_id: str, now: float) -> tuple[str, list[Any]]:
+        """The SQL condition (and its parameters) of a task that may be claimed now: pending,
+        running under an expired lease, or running under a driver known to be lost."""
+        rows = db.execute(
+            "SELECT DISTINCT d.* FROM tasks t JOIN drivers d ON d.driver_id = t.lease_owner "
+            "WHERE t.job_id = ? AND t.state = ? AND t.lease_expires >= ?",
+            (job_id, RUNNING, now),
+        )
+        lost = [driver.driver_id for driver in (_driver(r) for r in rows) if driver.lost(now)]
+        condition = "(state = ? OR (state = ? AND lease_expires < ?)"
+        params: list[Any] = [PENDING, RUNNING, now]
+        if lost:
+            condition += f" OR (state = ? AND lease_owner IN ({', '.join('?' for _ in lost)}))"
+            params += [RUNNING, *lost]
+        return condition + ")", params
+
+    def renew(self, job_id: str, owner: str, lease: float) -> None:
+        """Extend every lease this owner holds in a job, and its heartbeat (called periodically by a
+        live driver)."""
+        now = time.time()
+        with self._transaction() as db:
+            db.execute(
+                "UPDATE tasks SET lease_expires = ? WHERE job_id = ? AND lease_owner = ? AND state = ?",
+                (now + lease, job_id, owner, RUNNING),
+            )
+            db.execute("UPDATE drivers SET heartbeat = ?, lease = ? WHERE driver_id = ?", (now, lease, owner))
+
+    def done_samples(self, job_id: str) -> int:
+        """Samples of the job's done tasks, whoever ran them."""
+        row = self._db.execute(
+            "SELECT COALESCE(SUM(samples), 0) AS n FROM tasks WHERE job_id = ? AND state = ?", (job_id, DONE)
+        ).fetchone()
+        return int(row["n"])
 
     def release(self, job_id: str, task_id: str, attempt_id: str) -> bool:
         """Give a claimed task back (pending again), e.g. when its worker was lost."""
@@ -340,6 +547,17 @@ def _job(row: sqlite3.Row) -> Job:
         updated=row["updated"],
         owner=row["owner"],
         summary=json.loads(row["summary"]) if row["summary"] else None,
+    )
+
+
+def _driver(row: sqlite3.Row) -> Driver:
+    return Driver(
+        driver_id=row["driver_id"],
+        job_id=row["job_id"],
+        process=ProcessIdentity(host=row["host"], machine=row["machine"], pid=row["pid"], start=row["process_start"]),
+        started=row["started"],
+        heartbeat=row["heartbeat"],
+        lease=row["lease"],
     )
 
 

@@ -1,8 +1,10 @@
 """`GenerationConfig`: everything that changes a sample, and its hash.
 
-The config defines a dataset. Two datasets with the same config hash, the same meshes and the same
-weights hold the same samples. Files the config names (a view-space file, later refiner weights)
-enter the hash by the sha256 of their content, never by their path, so moving a file keeps the hash.
+The config defines a dataset. Two datasets with the same config hash and the same meshes hold the
+same samples. Files the config names (a view-space file, the refiner's weights) enter the hash by the
+sha256 of their content, never by their path, so moving a file keeps the hash. ``poco_weights =
+"builtin"`` names the weights shipped with datagen (`builtin_poco_weights`): their content enters the
+hash too, so upgraded weights make another dataset, while the config keeps saying "builtin".
 
 Defaults are those of the AIR-OSVP paper as fixed by ``design/PIPELINE.md``.
 """
@@ -10,6 +12,7 @@ Defaults are those of the AIR-OSVP paper as fixed by ``design/PIPELINE.md``.
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import math
 from pathlib import Path
@@ -17,12 +20,17 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from schemas.errors import DatagenError
+
 MAX_VIEWS = 64
 """Cases are stored as one uint64 bit mask, so at most 64 candidate views."""
 
 BUILTIN_VIEW_SPACE = "builtin"
 GENERATED_VIEW_SPACE = "generated"
 BUILTIN_POCO_WEIGHTS = "builtin"
+BUILTIN_POCO_WEIGHTS_FILE: Path | None = None
+"""The shipped weights' path when set (tests point it at a copy); otherwise `builtin_poco_weights`
+finds ``datagen/data/poco_small.pt`` beside the installed datagen package."""
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
@@ -149,17 +157,32 @@ class GenerationConfig(_Frozen):
         """The band radius as a squared key distance: |dk|^2 <= this (25 for the defaults)."""
         return math.floor((self.band / self.voxel_size) ** 2 + 1e-9)
 
+    def named_files(self) -> dict[str, Path]:
+        """The files this config names, by field: a view-space file, the POCO weights (the shipped
+        file for "builtin")."""
+        files = {"poco_weights": self.poco_weights_path()}
+        if self.view_space.is_file:
+            files["view_space.source"] = Path(self.view_space.source)
+        return files
+
+    def poco_weights_path(self) -> Path:
+        """The weights file the ``poco`` refiner loads."""
+        return builtin_poco_weights() if self.poco_weights == BUILTIN_POCO_WEIGHTS else Path(self.poco_weights)
+
     def canonical_dict(self) -> dict[str, Any]:
         """The config as plain data with files replaced by the sha256 of their content.
 
         File paths are resolved when the config is loaded (relative to the config file), so the
-        path here is the one to read.
+        path here is the one to read. The shipped weights enter by content like any other file when
+        the ``poco`` refiner loads them, so ``"builtin"`` and the path of the same file hash alike;
+        other refiners never load them, so there ``"builtin"`` stays the word and their datasets keep
+        their identity across an upgrade of the shipped weights.
         """
         data = self.model_dump(mode="json")
         if self.view_space.is_file:
             data["view_space"]["source"] = "sha256:" + file_sha256(Path(self.view_space.source))
-        if self.poco_weights != BUILTIN_POCO_WEIGHTS:
-            data["poco_weights"] = "sha256:" + file_sha256(Path(self.poco_weights))
+        if self.refiner == "poco" or self.poco_weights != BUILTIN_POCO_WEIGHTS:
+            data["poco_weights"] = "sha256:" + file_sha256(self.poco_weights_path())
         return data
 
     def config_hash(self) -> str:
@@ -172,9 +195,38 @@ def canonical_json(data: Any) -> str:
     return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
 
+def builtin_poco_weights() -> Path:
+    """The POCO weights shipped with datagen (``datagen/data/poco_small.pt``), found without
+    importing datagen (`BUILTIN_POCO_WEIGHTS_FILE` overrides)."""
+    if BUILTIN_POCO_WEIGHTS_FILE is not None:
+        return BUILTIN_POCO_WEIGHTS_FILE
+    spec = importlib.util.find_spec("datagen")
+    if spec is None or not spec.submodule_search_locations:
+        raise DatagenError(
+            "poco_weights = 'builtin' needs the datagen package, which is not installed here; "
+            "set poco_weights to a weights file"
+        )
+    return Path(next(iter(spec.submodule_search_locations))) / "data" / "poco_small.pt"
+
+
 def file_sha256(path: Path) -> str:
     digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
+    try:
+        with open(path, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    except FileNotFoundError:
+        raise MissingConfigFile(
+            f"{path}: file named by the config not found; it enters the config hash by its content "
+            "(restore it, or reinstall datagen for the built-in weights)",
+            path,
+        ) from None
     return digest.hexdigest()
+
+
+class MissingConfigFile(DatagenError):
+    """A file the config names (its content enters the hash) is not there; ``filename`` names it."""
+
+    def __init__(self, message: str, path: Path | str = "") -> None:
+        super().__init__(message)
+        self.filename = str(path)

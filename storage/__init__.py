@@ -6,10 +6,10 @@ Depends on numpy, zarr, pyarrow, fsspec and `schemas` only: a training package n
 
 from storage.dataset_info import init_dataset, read_info
 from storage.export import export_air
-from storage.location import Location, StorageError, is_s3, open_location, storage_failure
+from storage.location import DamagedFile, Location, StorageError, is_s3, open_location, storage_failure
 from storage.reader import Dataset, finalise, load_index, open_dataset
 from storage.shards import ShardReader
-from storage.validate import SAMPLED_ROWS_PER_SHARD, validate
+from storage.validate import SAMPLED_ROWS_PER_SHARD, Validation, validate, validate_dataset
 from storage.writer import (
     ShardPayload,
     committed_tasks,
@@ -18,17 +18,21 @@ from storage.writer import (
     read_commits,
     read_failures,
     stored_bytes,
+    sweep_orphans,
+    sweep_temporaries,
     write_failure,
     write_task,
 )
 
 __all__ = [
     "SAMPLED_ROWS_PER_SHARD",
+    "DamagedFile",
     "Dataset",
     "Location",
     "ShardPayload",
     "ShardReader",
     "StorageError",
+    "Validation",
     "committed_tasks",
     "export_air",
     "finalise",
@@ -44,7 +48,10 @@ __all__ = [
     "read_info",
     "storage_failure",
     "stored_bytes",
+    "sweep_orphans",
+    "sweep_temporaries",
     "validate",
+    "validate_dataset",
     "write_failure",
     "write_task",
 ]

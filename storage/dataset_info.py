@@ -5,18 +5,26 @@ from __future__ import annotations
 from pydantic import ValidationError
 
 from schemas.dataset import DATASET_FILE, DatasetInfo
-from storage.location import Location, StorageError
+from storage.location import Location, StorageError, damaged, first_validation_error
+from storage.writer import COMMITS, FAILURES
 
 
 def read_info(location: Location) -> DatasetInfo:
+    """``dataset.json``; a `StorageError` naming the file and the fix when it is missing or bad."""
     if not location.exists(DATASET_FILE):
+        if holds_records(location):
+            raise damaged(location.url, DATASET_FILE, "missing although the dataset holds commit or failure records")
         raise StorageError(f"{location.url}: no {DATASET_FILE} here; this is not a datagen dataset (check the URL)")
     try:
         return DatasetInfo.model_validate_json(location.read_bytes(DATASET_FILE))
     except ValidationError as exc:
-        raise StorageError(
-            f"{location.url}: {DATASET_FILE} is unreadable ({exc.error_count()} problems); the dataset is corrupt"
-        ) from None
+        problem = f"unreadable ({first_validation_error(exc)})"
+        raise damaged(location.url, DATASET_FILE, problem) from None
+
+
+def holds_records(location: Location) -> bool:
+    """True when commit or failure records are there (a dataset, whatever became of its dataset.json)."""
+    return any(location.listdir(folder) for folder in (COMMITS, FAILURES))
 
 
 def init_dataset(location: Location, info: DatasetInfo) -> DatasetInfo:

@@ -6,18 +6,67 @@ from __future__ import annotations
 import contextlib
 import os
 import posixpath
+import re
 import uuid
 from dataclasses import dataclass, field
 from typing import Any
 
 import fsspec
 from fsspec.implementations.local import LocalFileSystem
+from pydantic import ValidationError
 
 from schemas.errors import DatagenError
 
 
 class StorageError(DatagenError):
     """The dataset location cannot be reached, read or written; the message says what to do."""
+
+
+TEMPORARY_MARK = ".tmp-"
+"""Names of `_durable_temporary` files carry this; readers never open such a file."""
+ZARR_PARTIAL = re.compile(r"\.[0-9a-f]{32}\.partial$")
+"""zarr's LocalStore writes ``<name>.<uuid hex>.partial`` and renames it into place."""
+
+RERUN_FIX = "re-run the task (`datagen resume JOB`, or re-submit the job to the same --out)"
+
+
+class DamagedFile(StorageError):
+    """A file of the dataset is missing, truncated or corrupt (raised by readers, never silent).
+
+    ``relative`` (the file's path in the dataset) and ``problem`` (what is wrong with it) let
+    `storage.validate` print its own line; the message adds the URL and the fix. Built by
+    `damaged`; the attributes survive pickling (a DataLoader worker re-raises it in the parent).
+    """
+
+    relative: str = ""
+    problem: str = ""
+
+
+def damaged(url: str, relative: str, problem: str, rerun_task: bool = False) -> DamagedFile:
+    """One line naming the dataset, the file and the fix (`datagen shards validate`)."""
+    fix = f"run `datagen shards validate {url}`" + (f", then {RERUN_FIX}" if rerun_task else "")
+    error = DamagedFile(f"{url}: {relative}: {problem}; {fix}")
+    error.relative, error.problem = relative, problem
+    return error
+
+
+def is_temporary(path: str) -> bool:
+    """True for a temporary file of an unfinished or interrupted atomic write (ours or zarr's)."""
+    name = path.rsplit("/", 1)[-1]
+    return TEMPORARY_MARK in name or ZARR_PARTIAL.search(name) is not None
+
+
+def first_validation_error(error: ValidationError) -> str:
+    """``where: what`` of a pydantic error's first problem (its full text spans many lines)."""
+    first = error.errors()[0]
+    where = ".".join(str(part) for part in first["loc"])
+    return f"{where}: {first['msg']}" if where else str(first["msg"])
+
+
+def first_line(error: BaseException) -> str:
+    """``Type: first line of the message``: enough to tell damage apart, still one line."""
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {text[0] if text else 'no message'}"
 
 
 @dataclass(frozen=True)
@@ -56,7 +105,12 @@ class Location:
         target = self.path(relative)
         self.fs.makedirs(posixpath.dirname(target), exist_ok=True)
         if self.is_local:
-            os.replace(_durable_temporary(target, data), target)
+            temporary = _durable_temporary(target, data)
+            try:
+                os.replace(temporary, target)
+            except BaseException:
+                _discard(temporary)
+                raise
         else:
             # Object stores and the memory filesystem publish a single put whole.
             self.fs.pipe_file(target, data)
@@ -99,13 +153,26 @@ class Location:
 
 
 def _durable_temporary(target: str, data: bytes) -> str:
-    """A fully written, fsynced file beside ``target``, to be moved or linked into place."""
-    temporary = f"{target}.tmp-{uuid.uuid4().hex}"
-    with open(temporary, "wb") as handle:
-        handle.write(data)
-        handle.flush()
-        os.fsync(handle.fileno())
+    """A fully written, fsynced file beside ``target``, to be moved or linked into place.
+
+    A write that fails (a full disk) removes its partial file; only a killed process leaves one,
+    which readers never open and `storage.validate` names as a leftover.
+    """
+    temporary = f"{target}{TEMPORARY_MARK}{uuid.uuid4().hex}"
+    try:
+        with open(temporary, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            os.fsync(handle.fileno())
+    except BaseException:
+        _discard(temporary)
+        raise
     return temporary
+
+
+def _discard(path: str) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
 
 
 S3_SCHEMES = ("s3://", "s3a://")
@@ -137,8 +204,7 @@ def environment_options(url: str) -> dict[str, Any]:
 
 def storage_failure(url: str, error: BaseException) -> StorageError:
     """One line for a store that cannot be reached or refuses us, naming what to check."""
-    text = str(error).strip().splitlines()
-    detail = f"{type(error).__name__}: {text[0] if text else 'no message'}"
+    detail = first_line(error)
     if is_s3(url):
         fix = "check the bucket, AWS_ENDPOINT_URL and the credentials (AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY)"
     else:

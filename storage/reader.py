@@ -1,13 +1,14 @@
 """Read a dataset from its URL: the index as a pyarrow Table, samples as numpy arrays.
 
 Only committed tasks are visible. The merged ``index.parquet`` written by `finalise` is used when it
-covers exactly the current commit records; otherwise the per-shard fragments are merged on open.
+covers exactly the current commit records; otherwise the per-shard fragments are merged on open
+(`storage.index`). A damaged file is never served: each shard is verified whole (every array, every
+chunk file) the first time a dataset reads from it, and anything unreadable is a `StorageError`
+naming the file and the fix.
 """
 
 from __future__ import annotations
 
-import io
-import json
 from collections import OrderedDict
 from collections.abc import Iterator, Sequence
 from typing import Any
@@ -16,72 +17,56 @@ import numpy as np
 import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.parquet as pq
 
 from schemas.dataset import DatasetInfo
-from schemas.index import INDEX_SCHEMA, CommitRecord, FailureRecord
+from schemas.index import FailureRecord
 from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
 from storage.dataset_info import read_info
-from storage.location import Location, StorageError, open_location
+from storage.index import INDEX_COVERAGE_FILE as INDEX_COVERAGE_FILE
+from storage.index import INDEX_FILE as INDEX_FILE
+from storage.index import finalise as finalise
+from storage.index import load_index
+from storage.location import Location, open_location, storage_failure
 from storage.shards import ShardReader
-from storage.writer import committed_tasks, read_failures
+from storage.writer import read_failures
 
-INDEX_FILE = "index.parquet"
-INDEX_COVERAGE_FILE = "index.json"
 SHARD_CACHE = 16
 
 Sample = dict[str, Any]
 
 
-def finalise(location: Location) -> pa.Table:
-    """Merge the committed fragments into ``index.parquet`` (with the commits it covers)."""
-    commits = committed_tasks(location)
-    table = _merge_fragments(location, commits)
-    sink = pa.BufferOutputStream()
-    pq.write_table(table, sink, compression="zstd")
-    location.write_atomic(INDEX_FILE, bytes(sink.getvalue().to_pybytes()))
-    coverage = {r.task_id: r.attempt_id for r in commits}
-    location.write_atomic(INDEX_COVERAGE_FILE, json.dumps(coverage, sort_keys=True).encode())
-    return table
-
-
-def load_index(location: Location, commits: Sequence[CommitRecord] | None = None) -> pa.Table:
-    commits = committed_tasks(location) if commits is None else commits
-    if location.exists(INDEX_FILE) and location.exists(INDEX_COVERAGE_FILE):
-        coverage = json.loads(location.read_bytes(INDEX_COVERAGE_FILE))
-        if coverage == {r.task_id: r.attempt_id for r in commits}:
-            return pq.read_table(io.BytesIO(location.read_bytes(INDEX_FILE)), schema=INDEX_SCHEMA)
-    return _merge_fragments(location, commits)
-
-
-def _merge_fragments(location: Location, commits: Sequence[CommitRecord]) -> pa.Table:
-    tables = [
-        pq.read_table(io.BytesIO(location.read_bytes(record.index_fragment)), schema=INDEX_SCHEMA) for record in commits
-    ]
-    if not tables:
-        return INDEX_SCHEMA.empty_table()
-    return pa.concat_tables(tables).combine_chunks()
-
-
 def open_dataset(url: str, storage_options: dict[str, Any] | None = None) -> Dataset:
-    """Open the dataset at a local path or fsspec URL for reading."""
+    """Open the dataset at a local path or fsspec URL for reading.
+
+    Raises `StorageError` (one line naming the file and the fix) when ``dataset.json``, a commit
+    record, an index file or a fragment is missing or damaged, or when the finalised index
+    disagrees with the commit records.
+    """
     location = open_location(url, storage_options)
     try:
         info = read_info(location)
-        index = load_index(location)
-    except FileNotFoundError as exc:
-        raise StorageError(f"{url}: incomplete dataset ({exc}); run 'datagen shards validate {url}'") from None
-    return Dataset(location, info, index)
+        return Dataset(location, info, load_index(location))
+    except OSError as exc:  # the store itself failed (damaged files are `DamagedFile`, named)
+        raise storage_failure(url, exc) from None
 
 
 class Dataset:
     """Random access to samples (``ds[i]``), filters, object-level splits, shuffled iteration."""
 
-    def __init__(self, location: Location, info: DatasetInfo, index: pa.Table) -> None:
+    _integrity_checks = True
+    """Verify each shard whole before its first read (`ShardReader.verify`). Only
+    benchmarks/reader.py turns it off on an instance, to measure what the check costs."""
+
+    def __init__(
+        self, location: Location, info: DatasetInfo, index: pa.Table, verified: set[str] | None = None
+    ) -> None:
         self.location = location
         self.info = info
         self.index = index
         self._shards: OrderedDict[str, ShardReader] = OrderedDict()
+        self._verified: set[str] = set() if verified is None else verified
+        """Shards verified by this reader (shared with its selections), so a shard evicted from the
+        cache and opened again is not listed again."""
         self._shard_col = index.column("shard").to_pylist()
         self._row_col = index.column("row").to_numpy()
         self._voxel = info.config.voxel_size
@@ -111,7 +96,9 @@ class Dataset:
     def shard(self, relative: str) -> ShardReader:
         reader = self._shards.get(relative)
         if reader is None:
-            reader = ShardReader(self.location, relative)
+            verify = self._integrity_checks and relative not in self._verified
+            reader = ShardReader(self.location, relative, verify=verify)
+            self._verified.add(relative)
             self._shards[relative] = reader
             if len(self._shards) > SHARD_CACHE:
                 self._shards.popitem(last=False)
@@ -150,7 +137,10 @@ class Dataset:
     # -- selections ---------------------------------------------------------------------------
     def select(self, rows: npt.ArrayLike) -> Dataset:
         """A dataset over a subset of index rows (in the given order)."""
-        return Dataset(self.location, self.info, self.index.take(pa.array(np.asarray(rows, dtype=np.int64))))
+        chosen = self.index.take(pa.array(np.asarray(rows, dtype=np.int64)))
+        selected = Dataset(self.location, self.info, chosen, self._verified)
+        selected._integrity_checks = self._integrity_checks
+        return selected
 
     def filter(
         self,

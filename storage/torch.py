@@ -3,7 +3,8 @@ sampler. Importing `storage` never imports torch; importing this module does.
 
 Resampling to ``num_points`` depends only on (seed, epoch, index), never on worker count or order,
 so two runs with the same seeds see identical tensors. Shard handles are opened lazily in each
-worker process (fork and spawn both work: the dataset pickles without them).
+worker process (fork and spawn both work: the dataset pickles without them). A damaged dataset is a
+`storage.StorageError` naming the file and the fix, never a silently zeroed sample (`storage.reader`).
 """
 
 from __future__ import annotations

@@ -7,16 +7,17 @@ the row.
 
 from __future__ import annotations
 
-import io
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-import pyarrow.parquet as pq
+import pyarrow as pa
 
-from schemas.index import INDEX_SCHEMA, CommitRecord
+from schemas.dataset import DatasetInfo
+from schemas.index import CommitRecord
 from schemas.shard import (
     GT_KEYS,
     KEY_DTYPE,
@@ -33,8 +34,8 @@ from schemas.shard import (
 )
 from schemas.version import SCHEMA_VERSION
 from storage.dataset_info import read_info
-from storage.location import Location, StorageError, open_location
-from storage.reader import load_index
+from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
+from storage.location import DamagedFile, Location, StorageError, open_location
 from storage.shards import ShardReader
 from storage.writer import read_commits
 
@@ -48,6 +49,15 @@ as the solver-based label check reads every shard once); it records its own find
 worker threads."""
 
 
+@dataclass(frozen=True)
+class Validation:
+    """What `validate_dataset` found: ``problems`` (the dataset is not sound; readers refuse it or
+    part of it) and ``warnings`` (harmless leftovers a user may clean up)."""
+
+    problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
 def validate(
     url: str,
     full: bool = False,
@@ -56,22 +66,57 @@ def validate(
     shard_check: ShardCheck | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[str]:
-    """Every problem found, one line each (empty when the dataset is sound).
+    """Every problem found, one line each (empty when the dataset is sound; warnings about
+    leftovers: `validate_dataset`).
 
     ``full=False`` checks coverage on a seeded sample of rows per shard; ``full=True`` on every row.
     ``progress`` is called with (shards done, shards in all).
     """
+    return validate_dataset(url, full, seed, storage_options, shard_check, progress).problems
+
+
+def validate_dataset(
+    url: str,
+    full: bool = False,
+    seed: int = 0,
+    storage_options: dict[str, Any] | None = None,
+    shard_check: ShardCheck | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Validation:
+    """`validate`'s problems plus warnings; never raises for a damaged file (each is a line)."""
     location = open_location(url, storage_options)
+    found = Validation()
     try:
-        info = read_info(location)
-    except StorageError as exc:
-        return [str(exc)]
+        info: DatasetInfo | None = read_info(location)
+    except DamagedFile as exc:  # the records can still be checked; the shards need the config
+        info = None
+        found.problems.append(f"{exc.relative}: {exc.problem}")
+    except StorageError as exc:  # no dataset here at all
+        return Validation([str(exc)])
+    commits, unreadable = read_commits(location)
+    found.problems.extend(unreadable)
+    if info is not None:
+        found.problems.extend(_check_shards(location, info, commits, full, seed, shard_check, progress))
+    found.problems.extend(_check_index(location, commits))
+    failure_problems, stale = check_failures(location, commits)
+    found.problems.extend(failure_problems)
+    found.warnings.extend(stale + leftover_temporaries(location))
+    return found
+
+
+def _check_shards(
+    location: Location,
+    info: DatasetInfo,
+    commits: list[CommitRecord],
+    full: bool,
+    seed: int,
+    shard_check: ShardCheck | None,
+    progress: Callable[[int, int], None] | None,
+) -> list[str]:
     problems: list[str] = []
     if info.schema_version != SCHEMA_VERSION:
         problems.append(f"dataset.json: schema version {info.schema_version}, this reader knows {SCHEMA_VERSION}")
     num_views, alpha = info.num_views, info.config.alpha
-    commits, unreadable = read_commits(location)
-    problems.extend(unreadable)
 
     def check(numbered: tuple[int, CommitRecord]) -> list[str]:
         number, record = numbered
@@ -85,7 +130,6 @@ def validate(
             problems.extend(shard_problems)
             if progress:
                 progress(done, len(commits))
-    problems.extend(_check_index(location, commits))
     return problems
 
 
@@ -100,10 +144,26 @@ def _check_shard(
 ) -> Iterator[str]:
     where = record.shard
     try:
-        shard = ShardReader(location, record.shard)
-    except Exception as exc:  # a missing or unreadable group: report, keep checking others
-        yield f"{where}: cannot open shard ({type(exc).__name__}: {exc})"
+        shard = ShardReader(location, record.shard, verify=False)  # each finding becomes a line below
+    except DamagedFile as exc:  # a missing or unreadable group: report, keep checking others
+        yield f"{where}: cannot open shard ({exc.problem})"
         return
+    try:
+        yield from _check_open_shard(shard, record, num_views, alpha, full, rng, shard_check)
+    except DamagedFile as exc:  # unreadable metadata of an array: the shard's last line
+        yield f"{where}: {exc.problem}" if exc.relative == where else f"{exc.relative}: {exc.problem}"
+
+
+def _check_open_shard(
+    shard: ShardReader,
+    record: CommitRecord,
+    num_views: int,
+    alpha: int,
+    full: bool,
+    rng: np.random.Generator,
+    shard_check: ShardCheck | None,
+) -> Iterator[str]:
+    where = record.shard
     count = record.num_samples
     if shard.attributes.num_samples != count or shard.attributes.attempt_id != record.attempt_id:
         yield f"{where}: attributes disagree with the commit record (samples or attempt id)"
@@ -118,8 +178,8 @@ def _check_shard(
         return
     try:
         arrays = {name: shard.array(name) for name in array_names()}
-    except Exception as exc:
-        yield f"{where}: cannot read arrays ({type(exc).__name__}: {exc}); the shard is truncated or corrupt"
+    except DamagedFile as exc:
+        yield f"{where}: cannot read arrays ({exc.relative}: {exc.problem})"
         return
     masks = arrays[MASKS]
     if masks.dtype != MASK_DTYPE or masks.shape != (count, 2):
@@ -221,22 +281,19 @@ def _check_coverage(
 
 
 def _check_index(location: Location, commits: list[CommitRecord]) -> Iterator[str]:
-    committed = {r.shard: r for r in commits}
-    for record in commits:
-        try:
-            fragment = pq.read_table(io.BytesIO(location.read_bytes(record.index_fragment)))
-        except Exception as exc:
-            yield f"{record.index_fragment}: cannot read index fragment ({type(exc).__name__})"
-            continue
-        if fragment.schema.remove_metadata() != INDEX_SCHEMA:
-            yield f"{record.index_fragment}: index columns differ from the schema"
-        if fragment.num_rows != record.num_samples:
-            yield f"{record.index_fragment}: {fragment.num_rows} rows for {record.num_samples} samples"
-    try:
-        index = load_index(location, commits)
-    except Exception as exc:
-        yield f"index: cannot be read ({type(exc).__name__}: {exc})"
+    """The fragments, the finalised index against the commit records, then each row of the index
+    readers would use (the finalised one when it covers the commits, else the merged fragments)."""
+    lines, fragments = check_fragments(location, commits)
+    yield from lines
+    lines, finalised = check_finalised_index(location, commits)
+    yield from lines
+    if finalised is not None:
+        index = finalised
+    elif fragments:
+        index = pa.concat_tables(fragments)
+    else:
         return
+    committed = {r.shard: r for r in commits}
     sample_ids = index.column("sample_id").to_pylist()
     shards = index.column("shard").to_pylist()
     rows = index.column("row").to_pylist()

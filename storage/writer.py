@@ -13,20 +13,23 @@ removes); a crash after it leaves a complete, committed task.
 from __future__ import annotations
 
 import json
+import os
+import time
+from collections.abc import Collection
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 import pyarrow as pa
-import pyarrow.parquet as pq
 from pydantic import ValidationError
 
 from schemas.dataset import DATASET_FILE
 from schemas.index import INDEX_SCHEMA, CommitRecord, FailureRecord
 from schemas.shard import ShardAttributes
 from schemas.version import SCHEMA_VERSION
-from storage.location import Location
+from storage.location import RERUN_FIX, DamagedFile, Location, damaged, first_validation_error, is_temporary
+from storage.parquet import parquet_bytes
 from storage.shards import write_shard_group
 
 COMMITS = "commits"
@@ -66,7 +69,22 @@ def failure_path(task_id: str) -> str:
 def read_commit(location: Location, task_id: str) -> CommitRecord | None:
     if not location.exists(commit_path(task_id)):
         return None
-    return CommitRecord.model_validate_json(location.read_bytes(commit_path(task_id)))
+    return _parse(location, commit_path(task_id), CommitRecord)
+
+
+Record = TypeVar("Record", CommitRecord, FailureRecord)
+
+
+def _parse(location: Location, relative: str, model: type[Record]) -> Record:
+    """A commit or failure record; `DamagedFile` naming it when it cannot be read or parsed."""
+    try:
+        return model.model_validate_json(location.read_bytes(relative))
+    except FileNotFoundError:
+        raise damaged(location.url, relative, "missing", rerun_task=True) from None
+    except ValidationError as exc:
+        kind = "commit" if model is CommitRecord else "failure"
+        problem = f"unparsable {kind} record ({first_validation_error(exc)})"
+        raise damaged(location.url, relative, problem, rerun_task=True) from None
 
 
 def write_task(location: Location, payload: ShardPayload, attempt_id: str) -> CommitRecord:
@@ -98,39 +116,54 @@ def write_task(location: Location, payload: ShardPayload, attempt_id: str) -> Co
 
 
 def write_failure(location: Location, record: FailureRecord) -> None:
-    """Record why a task has no shard (replaced by a later success)."""
+    """Record why a task has no shard (removed by a later success).
+
+    Not written when the task is committed already (another attempt won; readers follow the
+    commit). A task may still hold both records, legitimately: a writer killed between its commit
+    and removing the failure, or a failing attempt that checked just before another committed.
+    The commit wins; `storage.validate` names the stale failure record as a warning.
+    """
+    if location.exists(commit_path(record.task_id)):
+        return
     location.write_atomic(failure_path(record.task_id), record.model_dump_json().encode())
 
 
 def read_failures(location: Location) -> list[FailureRecord]:
-    records = []
-    for name in location.listdir(FAILURES):
-        if name.endswith(".json"):
-            records.append(FailureRecord.model_validate_json(location.read_bytes(f"{FAILURES}/{name}")))
-    return records
+    """Every failure record; `DamagedFile` naming the first one that cannot be parsed."""
+    return [_parse(location, relative, FailureRecord) for relative in _record_files(location, FAILURES)]
 
 
 def committed_tasks(location: Location) -> list[CommitRecord]:
-    """Every commit record, sorted by task id."""
-    records = []
-    for name in location.listdir(COMMITS):
-        if name.endswith(".json"):
-            records.append(CommitRecord.model_validate_json(location.read_bytes(f"{COMMITS}/{name}")))
+    """Every commit record, sorted by task id; `DamagedFile` naming the first unparsable one."""
+    records = [_parse(location, relative, CommitRecord) for relative in _record_files(location, COMMITS)]
     return sorted(records, key=lambda r: r.task_id)
+
+
+def _record_files(location: Location, folder: str) -> list[str]:
+    """``<folder>/<task>.json`` paths (temporaries of an interrupted write end otherwise)."""
+    return [f"{folder}/{name}" for name in location.listdir(folder) if name.endswith(".json")]
 
 
 def read_commits(location: Location) -> tuple[list[CommitRecord], list[str]]:
     """Commit records that parse, sorted by task id, and one problem line for each that does not
-    (so a reader can name the damaged record instead of failing on it)."""
-    records, problems = [], []
-    for name in location.listdir(COMMITS):
-        if not name.endswith(".json"):
-            continue
-        try:
-            records.append(CommitRecord.model_validate_json(location.read_bytes(f"{COMMITS}/{name}")))
-        except (ValidationError, OSError) as exc:
-            problems.append(f"{COMMITS}/{name}: unparsable commit record ({type(exc).__name__}); re-run the task")
+    (so `storage.validate` can name every damaged record instead of stopping at the first)."""
+    records, problems = _read_all(location, COMMITS, CommitRecord)
     return sorted(records, key=lambda r: r.task_id), problems
+
+
+def read_failure_records(location: Location) -> tuple[list[FailureRecord], list[str]]:
+    """Failure records that parse and one problem line for each that does not."""
+    return _read_all(location, FAILURES, FailureRecord)
+
+
+def _read_all(location: Location, folder: str, model: type[Record]) -> tuple[list[Record], list[str]]:
+    records, problems = [], []
+    for relative in _record_files(location, folder):
+        try:
+            records.append(_parse(location, relative, model))
+        except DamagedFile as exc:
+            problems.append(f"{relative}: {exc.problem}; {RERUN_FIX}")
+    return records, problems
 
 
 def stored_bytes(location: Location, commits: list[CommitRecord]) -> dict[str, int]:
@@ -162,20 +195,43 @@ def holds_dataset(location: Location) -> bool:
     return location.exists(DATASET_FILE) or bool(location.listdir(COMMITS))
 
 
-def sweep_orphans(location: Location) -> list[str]:
-    """Delete attempt files no commit record names; returns what was removed (sorted)."""
+def sweep_orphans(location: Location, finished: Collection[str] | None = None) -> list[str]:
+    """Delete attempt files no commit record names; returns what was removed (sorted).
+
+    Without ``finished`` only committed tasks are swept: an attempt of an uncommitted task may still
+    be running. ``finished`` names tasks no attempt writes to any more (a job that ended): only those
+    are swept, the uncommitted ones (failed) included; other tasks may belong to another job.
+    """
     committed = {r.task_id: r for r in committed_tasks(location)}
     removed = []
     for task_id in location.listdir(SHARDS):
         record = committed.get(task_id)
+        if (record is None) if finished is None else (task_id not in finished):
+            continue
+        keep = {record.shard, record.index_fragment} if record is not None else set()
         for name in location.listdir(f"{SHARDS}/{task_id}"):
             relative = f"{SHARDS}/{task_id}/{name}"
-            if record is not None and relative in (record.shard, record.index_fragment):
-                continue
-            if record is None:
-                continue  # an attempt may still be running; only committed tasks are swept
-            location.remove(relative, recursive=True)
-            removed.append(relative)
+            if relative not in keep:
+                location.remove(relative, recursive=True)
+                removed.append(relative)
+    return sorted(removed)
+
+
+def sweep_temporaries(location: Location, older_than: float) -> list[str]:
+    """Delete temporary files of writes that never published (a full disk, a killed writer) at the
+    dataset's top, in ``commits/`` and ``failures/``, once older than ``older_than`` seconds (a
+    younger one may belong to a write in progress). Local datasets only: an object store has no
+    temporary files (each object appears whole). Returns what was removed (sorted)."""
+    if not location.is_local:
+        return []
+    now = time.time()
+    removed = []
+    for folder in ("", COMMITS, FAILURES):
+        for name in location.listdir(folder):
+            relative = f"{folder}/{name}" if folder else name
+            if is_temporary(name) and now - os.path.getmtime(location.path(relative)) > older_than:
+                location.remove(relative)
+                removed.append(relative)
     return sorted(removed)
 
 
@@ -185,10 +241,7 @@ def _fragment_bytes(payload: ShardPayload, shard: str, attempt_id: str) -> bytes
     columns["shard"] = [shard] * count
     columns["row"] = list(range(count))
     columns["attempt_id"] = [attempt_id] * count
-    table = pa.Table.from_pydict({f.name: columns[f.name] for f in INDEX_SCHEMA}, schema=INDEX_SCHEMA)
-    sink = pa.BufferOutputStream()
-    pq.write_table(table, sink, compression="zstd")
-    return bytes(sink.getvalue().to_pybytes())
+    return parquet_bytes(pa.Table.from_pydict({f.name: columns[f.name] for f in INDEX_SCHEMA}, schema=INDEX_SCHEMA))
 
 
 def encode_json(data: dict[str, Any]) -> bytes:

@@ -5,6 +5,7 @@ Plain functions over `datagen.api` and `datagen.engine.serve`; `datagen.cli.main
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -15,10 +16,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from datagen.cli.common import console, error_console, user_errors
+from datagen.cli.common import console, error_console, say, user_errors
 from datagen.engine.driver import JobProgress, ProgressCallback
 from datagen.settings import RunSettings, default_home
-from jobs.ledger import DONE, Job
+from jobs.ledger import DONE, RUNNING, Job
 from schemas.jobs import JobSpec
 
 HomeOption = Annotated[
@@ -68,8 +69,13 @@ def _progress_display(title: str) -> Iterator[ProgressCallback]:
         console=console,
     ) as progress:
         bar = progress.add_task(title, total=None, samples=0, failed=0)
+        said = ""
 
         def update(state: JobProgress) -> None:
+            nonlocal said
+            if state.waiting and state.waiting != said:
+                progress.console.print(state.waiting, markup=False, highlight=False, soft_wrap=True)
+            said = state.waiting
             progress.update(
                 bar, total=state.total, completed=state.done + state.failed, samples=state.samples, failed=state.failed
             )
@@ -78,18 +84,32 @@ def _progress_display(title: str) -> Iterator[ProgressCallback]:
 
 
 def _report(job: Job) -> None:
+    """The job's outcome on stdout; each failed object or line as one ``error:`` line on stderr,
+    never wrapped (logs keep FILE:LINE and paths whole)."""
     summary = job.summary or {}
     colour = "green" if job.state == DONE else "red"
-    console.print(Text.assemble("job ", (job.job_id, "bold"), " ", (job.state, colour)))
+    console.print(Text.assemble("job ", (job.job_id, "bold"), " ", (job.state, colour)), soft_wrap=True)
     if summary:
         console.print(
             f"{summary.get('done', 0)}/{summary.get('tasks', 0)} tasks done, {summary.get('samples', 0)} samples, "
             f"{summary.get('failed', 0)} failed",
             highlight=False,
+            soft_wrap=True,
         )
+        if summary.get("swept"):
+            examples = summary.get("swept_examples", [])
+            more = ", ..." if summary["swept"] > len(examples) else ""
+            say(f"removed {summary['swept']} leftover files of interrupted attempts ({', '.join(examples)}{more})")
+        if summary.get("sweep_error"):
+            error_console.print(
+                f"warning: leftovers of interrupted attempts not removed: {summary['sweep_error']}",
+                markup=False,
+                highlight=False,
+                soft_wrap=True,
+            )
         for line in [*summary.get("line_errors", []), *summary.get("failures", [])]:
-            console.print(Text("error: ", style="red") + Text(str(line)), highlight=False)
-    console.print(Text("dataset: ") + Text(job.out, style="bold"), highlight=False)
+            error_console.print(Text("error: ", style="red") + Text(str(line)), highlight=False, soft_wrap=True)
+    console.print(Text("dataset: ") + Text(job.out, style="bold"), highlight=False, soft_wrap=True)
 
 
 def submit(
@@ -157,11 +177,23 @@ def status(
         ledger = api.ledger_for(settings)
         try:
             table = Table("job", "state", "tasks", "done", "failed", "running", "dataset")
+            hints = []
+            lost_jobs = set()
             for job in jobs:
                 counts = ledger.task_counts(job.job_id)
+                state = job.state
+                lost = ledger.lost_driver(job.job_id)
+                if lost is not None:
+                    lost_jobs.add(job.job_id)
+                    state = f"{job.state} (driver lost {_ago(lost.since)} ago)"
+                    who = f"its driver ({lost.driver.describe()}) is gone" if lost.driver else "no driver holds it"
+                    hints.append(
+                        f"job {job.job_id}: {who}, last heard from {_ago(lost.since)} ago; "
+                        f"run `datagen resume {job.job_id}` to finish it"
+                    )
                 table.add_row(
                     job.job_id,
-                    job.state,
+                    state,
                     str(sum(counts.values())),
                     str(counts.get("done", 0)),
                     str(counts.get("failed", 0)),
@@ -169,12 +201,15 @@ def status(
                     job.out,
                 )
             console.print(table)
+            for hint in hints:
+                say(hint)
             if job_id:
                 tasks = Table("task", "state", "attempts", "samples", "placement", "error")
                 for task in ledger.tasks(job_id):
+                    lost_task = task.state == RUNNING and job_id in lost_jobs
                     tasks.add_row(
                         task.task_id,
-                        task.state,
+                        f"{task.state} (driver lost)" if lost_task else task.state,
                         str(task.attempts),
                         str(task.samples or ""),
                         task.placement or "",
@@ -183,6 +218,16 @@ def status(
                 console.print(tasks)
         finally:
             ledger.close()
+
+
+def _ago(moment: float) -> str:
+    """How long ago, for people: ``45 s``, ``3 min``, ``2 h``."""
+    seconds = max(0.0, time.time() - moment)
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 7200:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.0f} h"
 
 
 def cancel(
@@ -213,6 +258,6 @@ def serve(
             _settings(home, None, address, workers, refiner_gpus),
             poll=poll,
             once=once,
-            report=lambda line: console.print(line, highlight=False),
-            error=lambda line: error_console.print(line, markup=False, highlight=False),
+            report=say,
+            error=lambda line: error_console.print(line, markup=False, highlight=False, soft_wrap=True),
         )

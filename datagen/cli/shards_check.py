@@ -1,10 +1,11 @@
 """``datagen shards validate | relabel``: is a dataset right, and the same samples for another alpha.
 
 ``validate`` joins two checkers in one pass over the shards: `storage.validate` (structure, index,
-every checked label covers its U; numpy only) and `datagen.inspection.label_check` (minimality and
-the lexicographic tie-break, with a solver) as its per-shard hook, so each shard is read once.
-Where both see the same damage, the line is printed once. Plain functions; `datagen.cli.shards`
-registers them.
+commit and failure records agreeing, every checked label covers its U; numpy only) and
+`datagen.inspection.label_check` (minimality and the lexicographic tie-break, with a solver) as
+its per-shard hook, so each shard is read once. Where both see the same damage, the line is printed
+once. Warnings (harmless leftovers) follow the problems and never fail the command. Plain
+functions; `datagen.cli.shards` registers them.
 """
 
 from __future__ import annotations
@@ -45,10 +46,13 @@ def validate(
     ] = False,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seeds which rows are sampled without --all.")] = 0,
 ) -> None:
-    """Check structure, index and labels (cover, minimum size, lexicographic choice); exit 0 only when all holds."""
+    """Check structure, index, records and labels (cover, minimum, lexicographic); exit 0 only when all holds.
+
+    Warnings (leftover temporary files, stale failure records) are printed but do not fail it.
+    """
     from datagen.inspection.label_check import ShardLabelCheck
     from storage import StorageError, open_location
-    from storage import validate as validate_storage
+    from storage.validate import validate_dataset
 
     with user_errors():
         options = _options(url)
@@ -59,7 +63,7 @@ def validate(
             checker = None
         with _progress() as bar:
             shards = bar.add_task("shards: structure, coverage, labels", total=None)
-            problems = validate_storage(
+            found = validate_dataset(
                 url,
                 full=every,
                 seed=seed,
@@ -67,6 +71,7 @@ def validate(
                 shard_check=checker,
                 progress=lambda done, total: bar.update(shards, completed=done, total=total),
             )
+        problems = found.problems
         if checker is not None:
             report = checker.finish()
         checked, tasks = (report.checked, report.shards) if report is not None else (0, 0)
@@ -74,12 +79,18 @@ def validate(
             problems.extend(_new_label_lines(problems, report))
         for line in problems:
             say(line)
+        for line in found.warnings:
+            say(f"warning: {line}")
         scope = "every label" if every else "a sample of labels"
+        warned = f", {_count(len(found.warnings), 'warning')} (harmless leftovers)" if found.warnings else ""
         if problems:
-            count = f"{len(problems)} problem" + ("s" if len(problems) > 1 else "")
-            say(f"{count} ({checked} labels checked with the solver, {scope})")
+            say(f"{_count(len(problems), 'problem')} ({checked} labels checked with the solver, {scope}){warned}")
             raise typer.Exit(1)
-        say(f"ok: {tasks} task{'s' if tasks != 1 else ''} sound, {checked} labels checked with the solver ({scope})")
+        say(f"ok: {_count(tasks, 'task')} sound, {checked} labels checked with the solver ({scope}){warned}")
+
+
+def _count(number: int, noun: str) -> str:
+    return f"{number} {noun}{'s' if number != 1 else ''}"
 
 
 def _new_label_lines(storage_lines: list[str], report: LabelReport) -> list[str]:

@@ -5,6 +5,22 @@ alive), keeps a bounded number in flight as Ray tasks, and records each outcome.
 commit whole shards through `storage`; the driver never touches sample data. Ray retries tasks
 whose worker process died; a dead driver's leases expire and `resume` (or another driver on the
 same ledger) claims those tasks again, while committed tasks are never recomputed.
+
+Liveness: the driver records itself on the job in the ledger (host, PID, process start) and renews a
+heartbeat with its leases; a driver on the same machine whose process is gone is known lost at once,
+so `resume` or `serve` take its tasks without waiting for its leases (`jobs.ledger`).
+
+Several drivers on one job cooperate: task claims are exclusive, so a `resume` started while the
+first driver still runs (or two `serve` loops) share the remaining tasks. With ``wait_for_others``
+(`submit` and `resume`), a driver that runs out of tasks to claim waits for the tasks the others
+still hold (taking over any whose driver is lost), then finalises the dataset and reports the job's
+true final state; its summary counts the samples of the whole dataset, whoever computed them. A
+serve loop passes ``wait_for_others=False`` and looks again later (`datagen.engine.serve`).
+
+A task the ledger marks failed because its worker died (Ray's retries spent) or raised gets a
+failure record written by the driver, as bad input gets one from the worker, so the dataset alone
+says what is missing and why. Once a job is complete the driver removes what interrupted attempts
+of its tasks left in the dataset (uncommitted attempt files, stale ``*.tmp-*`` files) and says so.
 """
 
 from __future__ import annotations
@@ -25,20 +41,34 @@ from typing import Any
 import numpy as np
 
 from datagen.engine.worker import TaskOutcome, execute_task
-from datagen.errors import ConfigError
+from datagen.errors import ConfigError, DatagenError
 from datagen.pipeline.viewspace import build_view_space
-from jobs.ledger import CANCELLED, DONE, FAILED, PENDING, RUNNING, Job, Ledger
+from jobs.ledger import CANCELLED, DONE, FAILED, FINAL_STATES, PENDING, RUNNING, Holders, Job, Ledger
 from schemas.config import GenerationConfig
-from schemas.dataset import DatasetInfo
+from schemas.dataset import DATASET_FILE, DatasetInfo
 from schemas.index import FailureRecord
 from schemas.jobs import JobSpec, TaskSpec
 from schemas.version import SCHEMA_VERSION
-from storage import StorageError, finalise, init_dataset, open_location, storage_failure, write_failure
+from storage import (
+    Location,
+    finalise,
+    init_dataset,
+    open_location,
+    read_info,
+    storage_failure,
+    sweep_orphans,
+    sweep_temporaries,
+    write_failure,
+)
 
 LEASE_SECONDS = 120.0
 RENEW_EVERY = 20.0
 TASK_RETRIES = 3
 """Ray re-executions of a task whose worker process died (system failures, not bad input)."""
+WAIT_POLL = 1.0
+"""Seconds between looks at the ledger while other drivers hold the job's last tasks."""
+TEMPORARY_AGE = 60.0
+"""A temporary file older than this has no writer left (a write publishes within a moment)."""
 
 
 @dataclass
@@ -50,6 +80,8 @@ class JobProgress:
     failed: int = 0
     samples: int = 0
     messages: list[str] = field(default_factory=list)
+    waiting: str = ""
+    """What the driver waits for when other drivers hold the job's remaining tasks ('' otherwise)."""
 
 
 ProgressCallback = Callable[[JobProgress], None]
@@ -84,10 +116,11 @@ def _remote_execute(
     attempt_id: str,
     storage_options: dict[str, Any] | None,
     device: str,
+    config_hash: str,
 ) -> tuple[TaskOutcome, str]:
     import ray
 
-    outcome = execute_task(task, config, out, attempt_id, storage_options, device)
+    outcome = execute_task(task, config, out, attempt_id, storage_options, device, config_hash)
     context = ray.get_runtime_context()
     return outcome, f"{context.get_node_id()[:12]}@{socket.gethostname()}"
 
@@ -119,6 +152,7 @@ def run_job(
     progress: ProgressCallback | None = None,
     max_in_flight: int | None = None,
     refiner_gpus: float = 0.0,
+    wait_for_others: bool = True,
 ) -> Job:
     """Run every runnable task of a job to completion (or cancellation); returns the job.
 
@@ -126,6 +160,9 @@ def run_job(
     then runs on CUDA). Tasks are plain Ray tasks rather than a fixed pool of actors, so a node that
     joins or leaves mid-job simply gains or loses tasks; the refiner's weights are still loaded once
     per worker process, which Ray keeps between tasks.
+
+    With ``wait_for_others`` the call returns only when the job is finished or cancelled, also when
+    other drivers hold some of its tasks; without it, it returns as soon as it can claim nothing.
     """
     import ray
 
@@ -134,8 +171,10 @@ def run_job(
     config = spec.config
     tasks_by_id = {task.task_id: task for task in spec.tasks}
     location = open_location(job.out, storage_options)
+    info = dataset_info(config)
     with _store_errors(job.out):
-        init_dataset(location, dataset_info(config))
+        _check_same_files(location, config, info.config_hash)
+        init_dataset(location, info)
         for number, line_error in enumerate(spec.line_errors):
             origin, _, message = line_error.partition(": ")
             write_failure(
@@ -154,63 +193,140 @@ def run_job(
             f"refiner_gpus = {refiner_gpus:g} but the Ray cluster has no GPU; drop --refiner-gpus to refine on CPU"
         )
     owner = f"driver-{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:6]}"
-    ledger.start_job(job_id, owner)
-    remote = ray.remote(num_cpus=1, num_gpus=refiner_gpus, max_retries=TASK_RETRIES, retry_exceptions=False)(
-        _remote_execute
-    )
-    device = "cuda" if refiner_gpus > 0 else "cpu"
-    capacity = max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1)))
-    tasks = ledger.tasks(job_id)
-    state = JobProgress(total=len(tasks))
-    state.done = sum(1 for t in tasks if t.state == DONE)
-    state.failed = sum(1 for t in tasks if t.state == FAILED)
-    state.samples = sum(t.samples or 0 for t in tasks if t.state == DONE)
-    in_flight: dict[Any, tuple[str, str]] = {}
-    last_renew = time.monotonic()
-    cancelled = False
-    while True:
-        if ledger.job(job_id).state == CANCELLED:
-            cancelled = True
-            for ref in in_flight:
-                ray.cancel(ref, force=True)
-            break
-        free = capacity - len(in_flight)
-        if free > 0:
-            for claim in ledger.claim(job_id, owner, LEASE_SECONDS, free):
-                task = tasks_by_id[claim.task.task_id]
-                ref = remote.remote(task, config, job.out, claim.attempt_id, storage_options, device)
-                in_flight[ref] = (claim.task.task_id, claim.attempt_id)
-        if not in_flight:
-            break
-        ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
-        for ref in ready:
-            task_id, attempt_id = in_flight.pop(ref)
-            _record(ledger, job_id, task_id, attempt_id, ref, state)
+    ledger.start_job(job_id, owner, LEASE_SECONDS)
+    try:
+        remote = ray.remote(num_cpus=1, num_gpus=refiner_gpus, max_retries=TASK_RETRIES, retry_exceptions=False)(
+            _remote_execute
+        )
+        device = "cuda" if refiner_gpus > 0 else "cpu"
+        capacity = max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        state = JobProgress(total=len(spec.tasks))
+        _count(ledger, job_id, state)
+        in_flight: dict[Any, tuple[str, str]] = {}
+        last_renew = time.monotonic()
+        cancelled = False
+        while True:
+            job_state = ledger.job(job_id).state
+            if job_state == CANCELLED:
+                cancelled = True
+                for ref in in_flight:
+                    ray.cancel(ref, force=True)
+                break
+            free = capacity - len(in_flight)
+            if free > 0:
+                for claim in ledger.claim(job_id, owner, LEASE_SECONDS, free):
+                    task = tasks_by_id[claim.task.task_id]
+                    ref = remote.remote(
+                        task, config, job.out, claim.attempt_id, storage_options, device, info.config_hash
+                    )
+                    in_flight[ref] = (claim.task.task_id, claim.attempt_id)
+            if in_flight:
+                state.waiting = ""
+                ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
+                for ref in ready:
+                    task_id, attempt_id = in_flight.pop(ref)
+                    _record(ledger, job_id, task_id, attempt_id, ref, state, location, tasks_by_id[task_id])
+            else:
+                counts = ledger.task_counts(job_id)
+                if not counts.get(PENDING) and not counts.get(RUNNING):
+                    break  # finished, by this driver or others
+                if not wait_for_others or job_state in FINAL_STATES:
+                    break
+                # Other drivers hold the remaining tasks: wait for them to finish (or for one of
+                # them to be lost, when the claim above takes its tasks over).
+                holders = ledger.holders(job_id)
+                state.waiting = waiting_line(job_id, holders) if holders else ""
+                time.sleep(WAIT_POLL)
+            _count(ledger, job_id, state)
+            if progress:
+                progress(state)
+            if time.monotonic() - last_renew > RENEW_EVERY:
+                ledger.renew(job_id, owner, LEASE_SECONDS)
+                last_renew = time.monotonic()
+        counts = ledger.task_counts(job_id)
+        if not cancelled and not counts.get(PENDING) and not counts.get(RUNNING):
+            ledger.finish_job(job_id, _finish(ledger, job_id, spec, location), other_failures=len(spec.line_errors))
+        state.waiting = ""
+        _count(ledger, job_id, state)
         if progress:
             progress(state)
-        if time.monotonic() - last_renew > RENEW_EVERY:
-            ledger.renew(job_id, owner, LEASE_SECONDS)
-            last_renew = time.monotonic()
-    counts = ledger.task_counts(job_id)
-    if not cancelled and not counts.get(PENDING) and not counts.get(RUNNING):
-        with _store_errors(job.out):
-            finalise(location)
-        summary = {
-            "tasks": len(tasks),
-            "done": counts.get(DONE, 0),
-            "failed": counts.get(FAILED, 0) + len(spec.line_errors),
-            "samples": state.samples,
-            "line_errors": spec.line_errors,
-            "failures": [
-                f"{tasks_by_id[t.task_id].object.origin}: {t.task_id}: {t.error}"
-                for t in ledger.tasks(job_id)
-                if t.state == FAILED
-            ],
-        }
-        ledger.finish_job(job_id, summary, other_failures=len(spec.line_errors))
-    if progress:
-        progress(state)
+    finally:
+        ledger.leave(job_id, owner)
     return ledger.job(job_id)
+
+
+def waiting_line(job_id: str, holders: Holders) -> str:
+    """One line: what a driver waits for (the tasks others hold) and until when."""
+    who = [f"driver {d.describe()} (alive)" for d in holders.live] + holders.unknown
+    shown = ", ".join(who[:3]) + (f" and {len(who) - 3} more" if len(who) > 3 else "")
+    tasks = f"{holders.tasks} task{'s' if holders.tasks != 1 else ''}"
+    line = f"job {job_id}: waiting for {tasks} held by {shown}"
+    if holders.unknown:
+        until = time.strftime("%H:%M:%S", time.localtime(holders.until))
+        line += f"; until they finish, or their leases lapse at {until} unless renewed"
+    else:
+        line += "; until they finish (a driver that dies is replaced at once)"
+    return line
+
+
+def _count(ledger: Ledger, job_id: str, state: JobProgress) -> None:
+    """The job's progress from the ledger: every driver's work, not only this one's."""
+    counts = ledger.task_counts(job_id)
+    state.done = counts.get(DONE, 0)
+    state.failed = counts.get(FAILED, 0)
+    state.samples = ledger.done_samples(job_id)
+
+
+def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> dict[str, Any]:
+    """Finalise the index and clean up leftovers; the job's summary, counted from the dataset."""
+    with _store_errors(location.url):
+        index = finalise(location)
+    summary: dict[str, Any] = {}
+    try:
+        swept = sweep_leftovers(location, [task.task_id for task in spec.tasks])
+    except Exception as error:  # a failed clean-up must not fail a finished job
+        summary["sweep_error"] = f"{type(error).__name__}: {error}"
+        swept = []
+    tasks = ledger.tasks(job_id)
+    origin = {task.task_id: task.object.origin for task in spec.tasks}
+    summary.update(
+        {
+            "tasks": len(tasks),
+            "done": sum(1 for t in tasks if t.state == DONE),
+            "failed": sum(1 for t in tasks if t.state == FAILED) + len(spec.line_errors),
+            "samples": index.num_rows,
+            "line_errors": spec.line_errors,
+            "failures": [f"{origin[t.task_id]}: {t.task_id}: {t.error}" for t in tasks if t.state == FAILED],
+            "swept": len(swept),
+            "swept_examples": swept[:5],
+        }
+    )
+    return summary
+
+
+def sweep_leftovers(location: Location, task_ids: list[str]) -> list[str]:
+    """Remove what interrupted attempts of these finished tasks left (attempt files no commit names,
+    temporary files older than `TEMPORARY_AGE`); the removed paths, sorted. Only for a job whose
+    tasks are all finished: no attempt of theirs is still writing."""
+    return sorted(sweep_orphans(location, finished=task_ids) + sweep_temporaries(location, TEMPORARY_AGE))
+
+
+def _check_same_files(location: Location, config: GenerationConfig, config_hash: str) -> None:
+    """Refuse a dataset made with this very config but other contents of the files it names (new
+    shipped POCO weights after an upgrade, an edited view-space file): running on would mix samples
+    of two refiners (or view spaces) in one dataset. `init_dataset` refuses any other config."""
+    if not location.exists(DATASET_FILE):
+        return
+    existing = read_info(location)
+    if existing.config != config or existing.config_hash == config_hash:
+        return
+    files = ", ".join(f"{name} = {path}" for name, path in config.named_files().items())
+    raise ConfigError(
+        f"{location.url}: was made with this config but other contents of the files it names "
+        f"(config hash {existing.config_hash[:12]} there, {config_hash[:12]} now; {files}); one changed since, "
+        "such as the built-in POCO weights after an upgrade: restore the files it was made with, "
+        "or write to a new --out"
+    )
 
 
 @contextmanager
@@ -219,13 +335,22 @@ def _store_errors(url: str) -> Iterator[None]:
     unreachable endpoint once its timeout and retries are spent) becomes one `StorageError` line."""
     try:
         yield
-    except StorageError:
-        raise
+    except DatagenError:
+        raise  # already one line (a StorageError, or a refusal such as `_check_same_files`)
     except Exception as error:  # botocore, aiohttp and fsspec raise many unrelated types
         raise storage_failure(url, error) from None
 
 
-def _record(ledger: Ledger, job_id: str, task_id: str, attempt_id: str, ref: Any, state: JobProgress) -> None:
+def _record(
+    ledger: Ledger,
+    job_id: str,
+    task_id: str,
+    attempt_id: str,
+    ref: Any,
+    state: JobProgress,
+    location: Location,
+    task: TaskSpec,
+) -> None:
     import ray
 
     try:
@@ -233,19 +358,52 @@ def _record(ledger: Ledger, job_id: str, task_id: str, attempt_id: str, ref: Any
     except ray.exceptions.TaskCancelledError:
         ledger.release(job_id, task_id, attempt_id)
         return
-    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError, ray.exceptions.RayTaskError) as exc:
-        # Ray's retries are spent (or the task raised: a bug): record the task as failed with the
-        # reason, so the job ends and says why.
-        message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-        ledger.fail(job_id, task_id, attempt_id, f"worker error: {message}")
-        state.failed += 1
-        state.messages.append(f"{task_id}: {message}")
+    except ray.exceptions.RayError as exc:
+        # Ray's retries are spent (its workers died), or the task raised (a bug, or the store failed
+        # under it): the task is failed with the reason, so the job ends and says why, and the
+        # dataset gets the failure record the worker could not write.
+        message = _worker_failure(exc, job_id)
+        if ledger.fail(job_id, task_id, attempt_id, f"worker error: {message}"):
+            state.messages.append(f"{task_id}: {message}")
+            _write_failure(location, task, message, state)
         return
     if outcome.ok:
-        if ledger.complete(job_id, task_id, attempt_id, outcome.samples, placement):
-            state.done += 1
-            state.samples += outcome.samples
-    else:
-        if ledger.fail(job_id, task_id, attempt_id, outcome.message):
-            state.failed += 1
-            state.messages.append(f"{task_id}: {outcome.message}")
+        ledger.complete(job_id, task_id, attempt_id, outcome.samples, placement)
+    elif ledger.fail(job_id, task_id, attempt_id, outcome.message):
+        state.messages.append(f"{task_id}: {outcome.message}")
+
+
+def _worker_failure(exc: BaseException, job_id: str) -> str:
+    """One line: what happened to the task's worker, and what to do."""
+    import ray
+
+    if isinstance(exc, ray.exceptions.RayTaskError):
+        cause = exc.cause if isinstance(getattr(exc, "cause", None), BaseException) else exc
+        text = str(cause).strip().splitlines()
+        detail = f"{type(cause).__name__}: {text[-1] if text else 'no message'}"
+        return (
+            f"the task raised {detail}; if the output store failed (disk full, permissions) fix it, "
+            f"otherwise it is a bug to report; then run `datagen resume {job_id}`"
+        )
+    text = str(exc).strip().splitlines()
+    detail = text[-1] if text else type(exc).__name__
+    return (
+        f"its worker process died {TASK_RETRIES + 1} times running it ({type(exc).__name__}: {detail}); "
+        f"usually out of memory: run with fewer --workers or on nodes with more memory, then `datagen resume {job_id}`"
+    )
+
+
+def _write_failure(location: Location, task: TaskSpec, message: str, state: JobProgress) -> None:
+    try:
+        write_failure(
+            location,
+            FailureRecord(
+                schema_version=SCHEMA_VERSION,
+                task_id=task.task_id,
+                object_name=task.object.name,
+                origin=task.object.origin,
+                message=message,
+            ),
+        )
+    except Exception as error:  # the store that failed the task may refuse this too; the ledger has it
+        state.messages.append(f"{task.task_id}: failure record not written ({type(error).__name__}: {error})")

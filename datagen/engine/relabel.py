@@ -26,7 +26,7 @@ from datagen.engine.shard_payload import task_payload
 from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.task import Sample, TaskResult, TaskSets, relabel, sample_id
-from schemas.config import GenerationConfig
+from schemas.config import GenerationConfig, MissingConfigFile
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import GT_KEYS, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
@@ -231,7 +231,7 @@ def _with_alpha(config: GenerationConfig, alpha: int) -> GenerationConfig:
 def _config_hash(config: GenerationConfig) -> str:
     try:
         return config.config_hash()
-    except FileNotFoundError as exc:
+    except (FileNotFoundError, MissingConfigFile) as exc:
         raise ConfigError(
             f"the source config names {exc.filename}, which is not here; it is hashed into the new config"
         ) from None

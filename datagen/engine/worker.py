@@ -16,7 +16,7 @@ from typing import Any
 
 from datagen.engine.job_plan import object_spec
 from datagen.engine.shard_payload import task_payload
-from datagen.errors import DatagenError
+from datagen.errors import ConfigError, DatagenError
 from datagen.pipeline.objects.prepare import PreparedObject, prepare_object
 from datagen.pipeline.refine import make_refiner
 from datagen.pipeline.task import run_task
@@ -49,10 +49,13 @@ def execute_task(
     attempt_id: str,
     storage_options: dict[str, Any] | None = None,
     device: str = "cpu",
+    config_hash: str | None = None,
 ) -> TaskOutcome:
     """Run one task end to end and commit its shard under a unique execution id.
 
     ``device`` is where a learned refiner runs ('cuda' when the engine reserved a GPU share).
+    ``config_hash`` is the dataset's: a worker whose files give another hash (other shipped weights
+    on this node) fails the task rather than mix two refiners in one dataset.
     """
     started = time.perf_counter()
     frozen = config.model_dump_json()
@@ -63,6 +66,12 @@ def execute_task(
         return TaskOutcome(spec.task_id, True, committed.num_samples, committed.attempt_id, reused=True)
     execution = f"{attempt_id}-{uuid.uuid4().hex[:8]}"
     try:
+        if config_hash is not None and generation.config_hash() != config_hash:
+            files = ", ".join(f"{name} = {path}" for name, path in generation.named_files().items())
+            raise ConfigError(
+                f"this worker's files give config hash {generation.config_hash()[:12]}, the dataset's is "
+                f"{config_hash[:12]} ({files}): install the same datagen and weights on every node"
+            )
         refiner = make_refiner(generation, device)  # first: it may import torch, which the bound below fixes
         with single_threaded_blas(), fixed_torch_threads():
             prepared = _prepared(spec.object.model_dump_json(), frozen)

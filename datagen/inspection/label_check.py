@@ -34,7 +34,16 @@ import numpy.typing as npt
 from datagen.pipeline import setcover
 from schemas.index import CommitRecord
 from schemas.shard import LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
-from storage import SAMPLED_ROWS_PER_SHARD, Location, ShardReader, load_index, open_location, read_commits, read_info
+from storage import (
+    SAMPLED_ROWS_PER_SHARD,
+    DamagedFile,
+    Location,
+    ShardReader,
+    load_index,
+    open_location,
+    read_commits,
+    read_info,
+)
 
 MaskArray = npt.NDArray[np.uint64]
 
@@ -120,7 +129,7 @@ def check_labels(
         try:
             shard = ShardReader(location, record.shard)
         except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
-            line = f"{record.shard}: cannot check labels ({type(exc).__name__}: {exc})"
+            line = f"{record.shard}: cannot check labels ({_why(exc)})"
             return [LabelProblem(record.shard, None, UNREADABLE, line)]
         checker(record, shard)
         return []
@@ -175,6 +184,13 @@ def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tup
     return {(s, r): (n, int(label)) for s, r, n, label in zip(shards, rows, names, labels, strict=True)}
 
 
+def _why(error: Exception) -> str:
+    """What is wrong with a shard, without the reader's advice to run the validation running now."""
+    if isinstance(error, DamagedFile):
+        return f"{error.relative}: {error.problem}"
+    return f"{type(error).__name__}: {error}"
+
+
 def _sample_id(task_id: str, case: int) -> str:
     """The id of a sample the index does not name (imported late: `datagen.pipeline.task` loads the pipeline)."""
     from datagen.pipeline.task import sample_id
@@ -198,7 +214,7 @@ def _check_reader(
         masks = shard.array(MASKS)
         refined, offsets = _refined_sets(shard, num_views)
     except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
-        line = f"{where}: cannot check labels ({type(exc).__name__}: {exc})"
+        line = f"{where}: cannot check labels ({_why(exc)})"
         return [LabelProblem(where, None, UNREADABLE, line)], 0
     if masks.dtype != MASK_DTYPE or masks.ndim != 2 or masks.shape[1] != 2:
         return [LabelProblem(where, None, UNREADABLE, f"{where}: cannot check labels (masks {masks.shape})")], 0

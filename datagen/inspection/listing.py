@@ -100,9 +100,10 @@ def failed_tasks(dataset: Dataset, committed: set[str]) -> list[TaskRow]:
 def _index_totals(dataset: Dataset) -> dict[str, dict[str, Any]]:
     """Samples and summed points per task id, in one pass over the index columns."""
     columns = ["task_id", "object_name", "rotation", "num_points"]
+    # use_threads=False: pyarrow's thread pool must not outlive the command (it aborts at exit).
     grouped = (
         dataset.index.select(columns)
-        .group_by(["task_id", "object_name", "rotation"])
+        .group_by(["task_id", "object_name", "rotation"], use_threads=False)
         .aggregate([("num_points", "sum"), ("num_points", "count")])
     )
     totals: dict[str, dict[str, Any]] = {}

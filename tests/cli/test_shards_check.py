@@ -40,7 +40,7 @@ from datagen.pipeline.task import sample_id
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
-from storage import committed_tasks, open_dataset, open_location, read_failures
+from storage import StorageError, committed_tasks, open_dataset, open_location, read_failures
 from storage.shards import KEY_CHUNK_ROWS, ShardReader
 from storage.validate import SAMPLED_ROWS_PER_SHARD
 from storage.writer import commit_path, fragment_path, shard_path
@@ -337,6 +337,25 @@ def test_commit_record_disagreeing_with_the_shard(ds: Path) -> None:
     result = validate_all(ds)
     assert lines_with(result, record.shard, "disagree with the commit record")
     assert lines_with(result, record.index_fragment, "rows for")
+
+
+def test_deleted_commit_record_of_a_finalised_dataset(ds: Path) -> None:
+    """Before: "ok: 5 tasks sound" while index.json and index.parquet still listed the task."""
+    record = first(ds)
+    os.remove(ds / commit_path(record.task_id))
+    result = validate_all(ds)
+    assert lines_with(result, "index.json", record.task_id, "no commit record")
+    with pytest.raises(StorageError, match=record.task_id):
+        open_dataset(str(ds))
+
+
+def test_leftover_temporary_file_is_a_warning_and_passes(ds: Path) -> None:
+    leftover = f"{commit_path(first(ds).task_id)}.tmp-0123456789abcdef0123456789abcdef"
+    (ds / leftover).write_bytes(b"{")
+    result = shards("validate", str(ds))
+    assert result.exit_code == 0, result.output
+    assert lines_with(result, "warning:", leftover, "safe to delete")
+    assert result.output.splitlines()[-1].startswith("ok: ") and "1 warning" in result.output.splitlines()[-1]
 
 
 # -- labels that cover but break the rules (the solver's part) -------------------------------------------

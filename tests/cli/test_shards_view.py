@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import re
+import shutil
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -235,6 +236,28 @@ def test_show_errors_are_one_line(runner: CliRunner, url: str, tmp_path: Path) -
         assert_one_error_line(runner.invoke(app, ["shards", *command]), "dataset.json")
     unwritable = tmp_path / "no-folder" / "sample.png"
     assert_one_error_line(runner.invoke(app, ["shards", "show", url, "0", "--png", str(unwritable)]), "cannot write")
+
+
+def test_a_damaged_dataset_is_one_error_line_naming_the_file(
+    runner: CliRunner,
+    engine_dataset: EngineDataset,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    """A deleted chunk file of ``points_keys``: ``show`` read zeros before; ``ls`` and ``stats`` read
+    a truncated index.parquet with pyarrow's bare ArrowInvalid."""
+    damaged = Path(shutil.copytree(engine_dataset.url, tmp_path / "chunk"))
+    shard = json.loads(sorted((damaged / "commits").glob("*.json"))[0].read_text())["shard"]
+    (damaged / shard / "points_keys" / "c" / "0" / "0").unlink()
+    result = runner.invoke(app, ["shards", "show", str(damaged), "0"])
+    assert_one_error_line(result, f"{shard}: missing chunk files: points_keys")
+    assert f"datagen shards validate {damaged}" in result.stderr
+    truncated = Path(shutil.copytree(engine_dataset.url, tmp_path / "index"))
+    index = truncated / "index.parquet"
+    index.write_bytes(index.read_bytes()[: index.stat().st_size // 2])
+    for command in ("ls", "stats"):
+        result = runner.invoke(app, ["shards", command, str(truncated)])
+        assert_one_error_line(result, f"{truncated}: index.parquet: unreadable Parquet")
+        assert f"datagen shards validate {truncated}" in result.stderr
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -8,7 +8,9 @@ run of the determinism test is a `datagen submit --workers 1` subprocess with it
 
 from __future__ import annotations
 
+import os
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -44,7 +46,7 @@ from datagen.pipeline.task import run_task
 from datagen.pipeline.viewspace import build_view_space
 from datagen.settings import RunSettings
 from jobs.ledger import DONE, FAILED
-from storage import open_dataset, open_location, read_failures, validate
+from storage import open_dataset, open_location, read_commit, read_failures, validate
 
 pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="engine tests read /proc (Linux)"),
@@ -158,6 +160,50 @@ def test_shared_meshes_end_to_end(inputs: Path, tmp_path: Path) -> None:
     names = set(open_dataset(job.out).index.column("object_name").to_pylist())
     assert names == {"cow", "teapot", "spot"}
     assert all(t.attempts == 1 and t.state == DONE for t in job_tasks(tmp_path / "home", job.job_id))
+
+
+def test_a_finished_job_removes_leftovers_of_interrupted_attempts(inputs: Path, tmp_path: Path) -> None:
+    """What a killed or disk-starved attempt of the job's tasks left (an uncommitted attempt, files
+    of writes that never published) is removed once the job is complete, and the report says so;
+    another job's attempt and a temporary file still being written stay."""
+    out = tmp_path / "out"
+    objects = write_objects(tmp_path / "one.txt", builtin_lines(("capsule",)))
+    home = tmp_path / "home"
+    job = api.enqueue(objects, inputs / "one.toml", RunSettings(home=home, out=str(out)))
+    (task_id,) = planned_task_ids(job)
+    stale = [
+        f"shards/{task_id}/a1-0badc0ffee00-00000000.zarr/zarr.json",
+        f"shards/{task_id}/a1-0badc0ffee00-00000000.parquet",
+        f"commits/{task_id}.json.tmp-0123456789abcdef",
+        "index.parquet.tmp-0123456789abcdef",
+    ]
+    kept = ["shards/other-job-task/a1-000000000000-00000000.parquet", f"failures/{task_id}.json.tmp-fedcba9876543210"]
+    for relative in stale + kept:
+        (out / relative).parent.mkdir(parents=True, exist_ok=True)
+        (out / relative).write_bytes(b"partial")
+    an_hour_ago = time.time() - 3600
+    for relative in stale:
+        os.utime(out / relative, (an_hour_ago, an_hour_ago))
+    original = (common.console._width, common.error_console._width)
+    common.console._width = common.error_console._width = 400
+    try:
+        result = CliRunner().invoke(app, ["resume", job.job_id, "--home", str(home), "--workers", "2"])
+    finally:
+        common.console._width, common.error_console._width = original
+    assert result.exit_code == 0, result.output
+    assert all(not (out / relative).exists() for relative in stale)
+    assert all((out / relative).exists() for relative in kept)
+    assert f"removed 4 leftover files of interrupted attempts (commits/{task_id}.json.tmp-" in result.stdout
+    assert shard_dirs(str(out))[task_id] == sorted(Path(p).name for p in _committed_files(str(out), task_id))
+    done = only_job(home)
+    assert done is not None and done.summary is not None and done.summary["swept"] == 4
+    check_complete_dataset(str(out), [task_id])
+
+
+def _committed_files(url: str, task_id: str) -> list[str]:
+    record = read_commit(open_location(url), task_id)
+    assert record is not None
+    return [record.index_fragment, record.shard]
 
 
 # ---------------------------------------------------------------------------------------------------------

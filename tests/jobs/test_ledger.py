@@ -1,16 +1,22 @@
 """The job ledger (jobs/ledger.py), no Ray: state transitions, idempotence, leases that expire,
-stale attempts, cancel and reopen, and several processes claiming from one ledger file."""
+stale attempts, cancel and reopen, several processes claiming from one ledger file, and the
+liveness of drivers (jobs/liveness.py): a dead driver of this machine is noticed at once, one
+elsewhere when its heartbeat is older than its lease."""
 
 from __future__ import annotations
 
 import multiprocessing
 import random
+import subprocess
+import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from jobs.ledger import CANCELLED, DONE, FAILED, PENDING, RUNNING, Ledger, LedgerError
+from jobs.liveness import ProcessIdentity, process_alive, process_identity
 
 JOB = "job-1"
 
@@ -273,6 +279,165 @@ def test_finish_job_states(ledger: Ledger) -> None:
     assert ledger.finish_job("bad", {}).state == FAILED
     assert ledger.finish_job("lines", {}, other_failures=1).state == FAILED
     assert ledger.finish_job("open", {}).state == PENDING  # a task still running: not finished
+
+
+# ---------------------------------------------------------------------------------------------------------
+# liveness: who drives a job, and whether it still runs
+# ---------------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture
+def other_process() -> Iterator[subprocess.Popen]:
+    """A live process of this machine to stand for another driver (killed by the test or after it)."""
+    process = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    yield process
+    if process.poll() is None:
+        process.kill()
+        process.wait(timeout=30)
+
+
+def far_driver(pid: int = 4242) -> ProcessIdentity:
+    """A driver on another machine: its PID means nothing here."""
+    return ProcessIdentity(host="far-host", machine="another-machine", pid=pid, start="1")
+
+
+def test_process_identity_and_liveness(other_process: subprocess.Popen) -> None:
+    me = process_identity()
+    assert me.pid > 0 and me.host
+    assert process_alive(me) is True
+    other = process_identity(other_process.pid)
+    assert process_alive(other) is True
+    assert process_alive(far_driver()) is None  # elsewhere: only the heartbeat can tell
+    if sys.platform.startswith("linux"):
+        assert other.start  # the start time guards against a reused PID
+        assert process_alive(ProcessIdentity(other.host, other.machine, other.pid, "1")) is False
+    other_process.kill()
+    other_process.wait(timeout=30)
+    assert process_alive(other) is False
+
+
+def test_start_job_records_the_driver_and_renew_its_heartbeat(ledger: Ledger) -> None:
+    ledger.create_job(JOB, {}, "/out", task_list(1))
+    ledger.start_job(JOB, "driver-1", lease=30)
+    (driver,) = ledger.drivers(JOB)
+    assert (driver.driver_id, driver.job_id, driver.lease) == ("driver-1", JOB, 30)
+    assert driver.process == process_identity()
+    assert not driver.lost()
+    time.sleep(0.05)
+    ledger.renew(JOB, "driver-1", 30)
+    assert ledger.drivers(JOB)[0].heartbeat > driver.heartbeat
+
+
+def test_a_dead_drivers_tasks_are_claimed_at_once_on_this_machine(
+    ledger: Ledger, other_process: subprocess.Popen
+) -> None:
+    ledger.create_job(JOB, {}, "/out", task_list(3))
+    ledger.start_job(JOB, "driver-a", lease=3600, process=process_identity(other_process.pid))
+    held = ledger.claim(JOB, "driver-a", 3600, limit=2)
+    assert ledger.claimable(JOB) == 1  # driver-a lives: only the free task
+    assert ledger.lost_driver(JOB) is None
+    other_process.kill()
+    other_process.wait(timeout=30)
+    lost = ledger.lost_driver(JOB)
+    assert lost is not None and lost.driver is not None and lost.driver.driver_id == "driver-a"
+    assert lost.since == lost.driver.heartbeat <= time.time()
+    started = time.monotonic()
+    claims = ledger.claim(JOB, "B", 60, limit=3)
+    assert time.monotonic() - started < 5  # the hour-long leases do not matter
+    assert [c.task.task_id for c in claims] == [*(c.task.task_id for c in held), "t0002"]
+    assert [c.attempt_id[:3] for c in claims] == ["a2-", "a2-", "a1-"]
+
+
+def test_a_driver_elsewhere_is_lost_when_its_heartbeat_is_older_than_its_lease(ledger: Ledger) -> None:
+    ledger.create_job(JOB, {}, "/out", task_list(1))
+    ledger.start_job(JOB, "far", lease=0.4, process=far_driver())
+    ledger.claim(JOB, "far", 0.4)
+    ledger.renew(JOB, "far", 0.4)
+    assert ledger.lost_driver(JOB) is None
+    assert ledger.claim(JOB, "B", 60) == []  # its lease decides
+    holders = ledger.holders(JOB)
+    assert holders is not None and holders.unknown == ["far"] and holders.live == []
+    assert holders.until == ledger.task(JOB, "t0000").lease_expires
+    time.sleep(0.6)
+    lost = ledger.lost_driver(JOB)
+    assert lost is not None and lost.driver is not None and lost.driver.process.host == "far-host"
+    assert ledger.holders(JOB) is None
+    assert [c.task.task_id for c in ledger.claim(JOB, "B", 60)] == ["t0000"]
+
+
+def test_a_running_job_without_any_driver_record_is_lost_when_its_leases_lapse(ledger: Ledger) -> None:
+    ledger.create_job(JOB, {}, "/out", task_list(1))
+    ledger.start_job(JOB, "old", lease=0.2, process=far_driver())
+    ledger.claim(JOB, "unknown-owner", 0.2)
+    time.sleep(0.3)
+    ledger.reopen_job(JOB)  # nobody alive: everything back to pending, the lost driver's record gone
+    assert ledger.job(JOB).state == PENDING and ledger.drivers(JOB) == []
+    ledger.claim(JOB, "unknown-owner", 0.2)
+    with ledger._transaction() as db:  # a ledger written before drivers were recorded
+        db.execute("UPDATE jobs SET state = ? WHERE job_id = ?", (RUNNING, JOB))
+    assert ledger.lost_driver(JOB) is None  # a live lease, holder unknown
+    holders = ledger.holders(JOB)
+    assert holders is not None and holders.unknown == ["unknown-owner"]
+    time.sleep(0.3)
+    lost = ledger.lost_driver(JOB)
+    assert lost is not None and lost.driver is None
+    assert lost.since == ledger.task(JOB, "t0000").lease_expires
+
+
+def test_leave_gives_back_held_tasks_and_requeues_a_job_nobody_drives(ledger: Ledger) -> None:
+    ledger.create_job(JOB, {}, "/out", task_list(3))
+    ledger.start_job(JOB, "A")
+    ledger.start_job(JOB, "B")
+    ledger.claim(JOB, "A", 60)
+    ledger.claim(JOB, "B", 60)
+    ledger.leave(JOB, "A")
+    assert states(ledger) == {"t0000": PENDING, "t0001": RUNNING, "t0002": PENDING}
+    assert ledger.job(JOB).state == RUNNING  # B still drives it
+    ledger.leave(JOB, "B")
+    assert set(states(ledger).values()) == {PENDING}
+    assert ledger.job(JOB).state == PENDING and ledger.drivers(JOB) == []
+    assert [j.job_id for j in ledger.runnable_jobs()] == [JOB]
+
+
+def test_reopen_keeps_the_tasks_a_live_driver_runs(ledger: Ledger, other_process: subprocess.Popen) -> None:
+    ledger.create_job(JOB, {}, "/out", task_list(4))
+    ledger.start_job(JOB, "alive", lease=3600)
+    ledger.start_job(JOB, "dead", lease=3600, process=process_identity(other_process.pid))
+    (a,) = ledger.claim(JOB, "alive", 3600)
+    ledger.claim(JOB, "dead", 3600)
+    (f,) = ledger.claim(JOB, "alive", 3600)
+    ledger.fail(JOB, f.task.task_id, f.attempt_id, "bad")
+    other_process.kill()
+    other_process.wait(timeout=30)
+    job = ledger.reopen_job(JOB)
+    assert job.state == RUNNING  # a resume beside a live driver does not requeue its work
+    assert states(ledger) == {"t0000": RUNNING, "t0001": PENDING, "t0002": PENDING, "t0003": PENDING}
+    assert ledger.task(JOB, a.task.task_id).lease_owner == "alive"
+    assert [x.driver_id for x in ledger.drivers(JOB)] == ["alive"]  # the dead one's record is gone
+    holders_before = ledger.holders(JOB)
+    assert holders_before is None  # pending tasks can be claimed
+    ledger.claim(JOB, "resumer", 60, limit=3)
+    holders = ledger.holders(JOB)
+    assert holders is not None and [x.driver_id for x in holders.live] == ["alive"]
+    assert "resumer" in holders.unknown  # not a recorded driver: its lease decides
+
+
+def test_fail_job_leaves_a_job_a_live_driver_runs_to_it(ledger: Ledger) -> None:
+    ledger.create_job(JOB, {}, "/out", task_list(1))
+    ledger.start_job(JOB, "alive")
+    job = ledger.fail_job(JOB, "a second driver could not start")
+    assert (job.state, job.summary) == (RUNNING, None)
+    ledger.leave(JOB, "alive")
+    assert ledger.fail_job(JOB, "cannot start").state == FAILED
+
+
+def test_done_samples_counts_every_drivers_tasks(ledger: Ledger) -> None:
+    ledger.create_job(JOB, {}, "/out", task_list(3))
+    (a,) = ledger.claim(JOB, "A", 60)
+    (b,) = ledger.claim(JOB, "B", 60)
+    ledger.complete(JOB, a.task.task_id, a.attempt_id, 5, None)
+    ledger.complete(JOB, b.task.task_id, b.attempt_id, 7, None)
+    assert ledger.done_samples(JOB) == 12
 
 
 # ---------------------------------------------------------------------------------------------------------

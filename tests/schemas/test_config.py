@@ -433,3 +433,68 @@ def test_missing_config_file_rejected(tmp_path: Path) -> None:
     assert "nope.toml" in message
     assert "not found" in message
     assert "\n" not in message
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The built-in POCO weights enter the hash by their content
+# ---------------------------------------------------------------------------------------------------------
+
+
+def changed_copy(source: Path, target: Path) -> Path:
+    """The file with its last byte flipped: what an upgrade of the shipped weights looks like."""
+    data = bytearray(source.read_bytes())
+    data[-1] ^= 0x01
+    target.write_bytes(bytes(data))
+    return target
+
+
+def test_builtin_weights_enter_the_hash_by_content(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from schemas import config as config_module
+
+    shipped = config_module.builtin_poco_weights()
+    assert shipped.is_file() and shipped.name == "poco_small.pt"
+    before = GenerationConfig().config_hash()
+    assert GenerationConfig().canonical_dict()["poco_weights"] == "sha256:" + config_module.file_sha256(shipped)
+    # the same file by path hashes like "builtin" (content, never path)
+    assert GenerationConfig(poco_weights=str(shipped)).config_hash() == before
+    # an identical copy keeps the hash; one changed byte changes it
+    same = tmp_path / "same.pt"
+    same.write_bytes(shipped.read_bytes())
+    monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", same)
+    assert GenerationConfig().config_hash() == before
+    monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", changed_copy(shipped, tmp_path / "new.pt"))
+    upgraded = GenerationConfig()
+    assert upgraded.config_hash() != before
+    # ...while the config, its TOML and the refiner's file stay "builtin"
+    assert upgraded.poco_weights == "builtin" and upgraded == GenerationConfig()
+    assert tomllib.loads(config_to_toml(upgraded))["poco_weights"] == "builtin"
+    from datagen.pipeline.refine.factory import poco_weights_path
+
+    assert poco_weights_path(upgraded) == tmp_path / "new.pt"
+
+
+def test_missing_builtin_weights_are_one_clear_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from schemas import config as config_module
+    from schemas.errors import DatagenError
+
+    monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", tmp_path / "gone.pt")
+    with pytest.raises(DatagenError) as info:
+        GenerationConfig().config_hash()
+    assert "\n" not in str(info.value) and "gone.pt" in str(info.value) and "reinstall datagen" in str(info.value)
+
+
+def test_refiners_that_never_load_the_builtin_weights_keep_their_hash(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An upgrade of the shipped weights must not change the identity of a `none`/`carve`/`poisson`
+    dataset (they never load the weights), so such datasets made before it still resume."""
+    from schemas import config as config_module
+
+    others = [GenerationConfig(refiner=name) for name in ("none", "carve", "poisson")]
+    before = [c.config_hash() for c in others]
+    assert all(c.canonical_dict()["poco_weights"] == "builtin" for c in others)
+    shipped = config_module.builtin_poco_weights()
+    monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", changed_copy(shipped, tmp_path / "new.pt"))
+    assert [c.config_hash() for c in others] == before
+    monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", tmp_path / "gone.pt")
+    assert [c.config_hash() for c in others] == before  # not even read

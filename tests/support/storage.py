@@ -119,6 +119,23 @@ def build_dataset(
     return location
 
 
+def build_many_tasks(url: str, copies: int) -> Location:
+    """A finalised dataset of ``copies`` x `OBJECTS` tasks: each payload committed again under task
+    ids ``<task id><copy>`` (index rows renamed to match), so the index is ``copies`` times larger."""
+    location = open_location(url)
+    init_dataset(location, dataset_info())
+    for copy in range(copies):
+        for payload in payloads():
+            task_id = f"{payload.attributes.task_id}{copy:03d}"
+            rows = dict(payload.index_rows)
+            rows["task_id"] = [task_id] * payload.attributes.num_samples
+            rows["sample_id"] = [f"{task_id}-{sample.rsplit('-', 1)[1]}" for sample in rows["sample_id"]]
+            attributes = payload.attributes.model_copy(update={"task_id": task_id})
+            write_task(location, dataclasses.replace(payload, attributes=attributes, index_rows=rows), ATTEMPT)
+    finalise(location)
+    return location
+
+
 def copy_dataset(source: Path, target: Path) -> Path:
     shutil.copytree(source, target)
     return target

@@ -1,7 +1,9 @@
-"""Faults with real processes and a real Ray: a Ray worker SIGKILLed mid-task, the driver SIGKILLed
-mid-job and resumed, a job cancelled while it runs, and two `datagen serve` drivers on one ledger.
-Each must end with exactly the samples of an uninterrupted run (or, cancelled, with readable
-committed shards), every task computed once where the ledger says so.
+"""Faults with real processes and a real Ray: a Ray worker SIGKILLed mid-task (and every worker of
+one task, until Ray gives up), the driver SIGKILLed mid-job (`status` says so) and resumed, a
+`resume` beside the still-running driver, a job cancelled while it runs, and two `datagen serve`
+drivers on one ledger. Each must end with exactly the samples of an uninterrupted run (or,
+cancelled, with readable committed shards), every task computed once where the ledger says so; a
+task that cannot be computed is named in the dataset's failure records.
 
 The uninterrupted reference and the worker kill run in this process on one private Ray (2 CPUs);
 the other tests run `datagen` subprocesses (each with its own Ray) after that Ray is shut down.
@@ -13,6 +15,7 @@ import os
 import sys
 import threading
 import time
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -39,9 +42,10 @@ from support.engine import (
 )
 
 from datagen import api
+from datagen.engine import driver as driver_module
 from datagen.settings import RunSettings
 from jobs.ledger import CANCELLED, DONE, FAILED, PENDING, RUNNING
-from storage import committed_tasks, open_dataset, open_location, validate
+from storage import committed_tasks, open_dataset, open_location, read_failures, validate
 
 pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fault tests read /proc (Linux)"),
@@ -137,6 +141,51 @@ def test_worker_sigkill_mid_job(reference, inputs: Path, local_ray, tmp_path: Pa
     assert job.summary is not None and job.summary["samples"] == ref_summary.samples
 
 
+def test_worker_deaths_fail_the_task_with_a_failure_record(
+    local_ray, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every worker that runs the task is killed until Ray's retries are spent: the task is failed
+    in the ledger and in the dataset, whose failure record (and `datagen shards ls`) names it, its
+    objects-file line, what happened and the fix."""
+    monkeypatch.setattr(driver_module, "TASK_RETRIES", 1)  # two deaths are enough
+    config = write_config(tmp_path / "one.toml", rotations=1)
+    objects = write_objects(tmp_path / "one.txt", builtin_lines(["mug"]))
+    home = tmp_path / "home"
+    outcome: dict[str, object] = {}
+
+    def run() -> None:
+        try:
+            outcome["job"] = api.submit(objects, config, settings_for(home))
+        except BaseException as exc:  # reported by the main thread
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    killed: list = []
+    deadline = time.monotonic() + 180
+    while thread.is_alive() and time.monotonic() < deadline:
+        fresh = [b for b in ray_task_workers(os.getpid()) if all(b.pid != k.pid for k in killed)]
+        kill_exact(fresh)
+        killed += fresh
+        time.sleep(0.02)
+    thread.join(timeout=60)
+    assert not thread.is_alive(), "the job did not finish"
+    assert "error" not in outcome, outcome.get("error")
+    assert len(killed) == 2, killed
+    job = outcome["job"]
+    assert job.state == FAILED, job.summary
+    (task,) = job_tasks(home, job.job_id)
+    assert (task.state, task.attempts) == (FAILED, 1)
+    assert task.error.startswith("worker error: its worker process died 2 times running it")
+    (record,) = read_failures(open_location(job.out))
+    assert (record.task_id, record.object_name, record.origin) == (task.task_id, "mug", f"{objects}:2")
+    assert "died 2 times" in record.message and f"then `datagen resume {job.job_id}`" in record.message
+    listing = run_datagen(["shards", "ls", job.out], timeout=120)
+    assert listing.returncode == 0, listing.stdout + listing.stderr
+    assert ", 1 failed" in listing.stdout, listing.stdout
+    assert f"failed {task.task_id} ({objects}:2): its worker process died 2 times" in listing.stdout
+
+
 # ---------------------------------------------------------------------------------------------------------
 # (b) the driver dies mid-job; `datagen resume` finishes it
 # ---------------------------------------------------------------------------------------------------------
@@ -156,6 +205,12 @@ def test_driver_sigkill_then_resume(reference, no_local_ray, inputs: Path, tmp_p
         driver.sigkill()
         job = only_job(home)
         assert job is not None
+        # the ledger shows the job's driver as gone, and says what to do
+        status = run_datagen(["status", job.job_id, "--home", str(home)], timeout=120)
+        assert status.returncode == 0, status.stdout + status.stderr
+        assert "running (driver lost" in status.stdout, status.stdout
+        assert f"job {job.job_id}: its driver (pid {driver.pid} on " in status.stdout, status.stdout
+        assert f"run `datagen resume {job.job_id}` to finish it" in status.stdout, status.stdout
         before = {t.task_id: t for t in job_tasks(home, job.job_id)}
         done_before = {task_id for task_id, t in before.items() if t.state == DONE}
         assert 3 <= len(done_before) < TASKS, "the kill did not land mid-job"
@@ -167,6 +222,9 @@ def test_driver_sigkill_then_resume(reference, no_local_ray, inputs: Path, tmp_p
 
         resume = start(["resume", job.job_id, "--home", str(home), "--workers", "2"], tmp_path / "resume.log")
         assert resume.wait(timeout=240) == 0, resume.output()
+    # the dead driver's tasks were taken at once: the job was done before its leases would lapse
+    leases = [t.lease_expires for t in before.values() if t.state == RUNNING and t.lease_expires]
+    assert leases and time.time() < max(leases), "the resume waited for the dead driver's leases"
     job = only_job(home)
     assert job is not None and job.state == DONE
     summary = check_complete_dataset(job.out, list(ref_summary.commits))
@@ -187,6 +245,40 @@ def test_driver_sigkill_then_resume(reference, no_local_ray, inputs: Path, tmp_p
             assert after[task_id].attempts == 2
         elif task.state == PENDING:
             assert after[task_id].attempts == 1
+
+
+def test_resume_beside_the_running_driver(reference, no_local_ray, inputs: Path, tmp_path: Path) -> None:
+    """`datagen resume` while the job's `submit` still runs: the two drivers share what is left
+    (neither takes a task the other runs), both wait for the job's end and report it done (exit 0)
+    with the sample count of the whole dataset."""
+    ref_job, ref_summary = reference
+    home = tmp_path / "home"
+    with datagen_processes() as start:
+        first = start([*submit_args(inputs), "--workers", "1", "--home", str(home)], tmp_path / "submit.log")
+
+        def some_done() -> bool:
+            assert first.poll() is None, f"the job ended before the resume:\n{first.output()}"
+            return done_count(home) >= 2
+
+        wait_until(some_done, timeout=180, interval=0.05, what="2 tasks done")
+        job = only_job(home)
+        assert job is not None
+        second = start(["resume", job.job_id, "--home", str(home), "--workers", "1"], tmp_path / "resume.log")
+        assert second.wait(timeout=300) == 0, second.output()
+        assert first.wait(timeout=300) == 0, first.output()
+        logs = [first.output(), second.output()]
+    job = only_job(home)
+    assert job is not None and job.state == DONE, logs
+    summary = check_complete_dataset(job.out, list(ref_summary.commits))
+    assert summary.samples == ref_summary.samples
+    assert_same_samples(job.out, ref_job.out)
+    for log in logs:
+        assert f"job {job.job_id} done" in log, log
+        assert f"{TASKS}/{TASKS} tasks done, {summary.samples} samples, 0 failed" in log, log
+    tasks = job_tasks(home, job.job_id)
+    assert all(t.state == DONE and t.attempts == 1 for t in tasks), [(t.task_id, t.attempts) for t in tasks]
+    assert all(len(files) == 2 for files in shard_dirs(job.out).values()), shard_dirs(job.out)
+    print(f"tasks per driver: {sorted(Counter(t.placement for t in tasks).values())}")
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -287,11 +379,11 @@ def serve_waiting_on_a_lease(tmp_path_factory):
     with datagen_processes() as start:
         process = start(serve, folder / "serve.log")
 
-        def looked_twice() -> bool:
+        def said_it_waits() -> bool:
             assert process.poll() is None, process.output()
-            return process.output().count("running job") >= 2  # run_job came back once: Ray is up
+            return "waiting for" in process.output()  # it looked at the job and found the task held
 
-        wait_until(looked_twice, timeout=180, interval=0.05, what="the serve to look at the job")
+        wait_until(said_it_waits, timeout=180, interval=0.05, what="the serve to look at the job")
         first = process.output().count("running job")
         time.sleep(3.0)
         in_window = process.output().count("running job") - first
@@ -316,6 +408,16 @@ def test_serve_takes_a_task_given_back_by_another_driver(serve_waiting_on_a_leas
 def test_serve_polls_while_another_driver_holds_the_tasks(serve_waiting_on_a_lease) -> None:
     in_window, *_ = serve_waiting_on_a_lease
     assert in_window <= 10, f"{in_window} calls of run_job in 3 s with --poll 1"
+
+
+def test_serve_says_once_what_it_waits_for_and_until_when(serve_waiting_on_a_lease) -> None:
+    _, _, output, _, job_id = serve_waiting_on_a_lease
+    waiting = [line for line in output.splitlines() if "waiting for" in line]
+    assert len(waiting) == 1, output  # once, not at every poll
+    assert waiting[0].startswith(
+        f"job {job_id}: waiting for 1 task held by other-driver; until they finish, or their leases lapse at "
+    ), waiting
+    assert output.count("running job") == 1, output  # run_job only once the task could be claimed
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -396,20 +396,23 @@ def test_resumed_run_has_exactly_the_planned_samples(
 
 
 def test_half_shards_are_invisible_then_swept(killed_and_resumed: KilledAndResumed, aws_env: S3Server) -> None:
-    """What the bucket holds beyond the commits (the killed attempt's files) is never read, and
-    `sweep_orphans` removes exactly that."""
+    """The killed attempt's files were never read (`test_killed_run_left_a_half_shard_readers_ignore`),
+    and the resumed driver removed exactly them once the job was complete: the bucket holds the
+    commits' files and nothing else, and `sweep_orphans` finds nothing left."""
     run = killed_and_resumed
+    assert run.half, "no half-written attempt in the bucket after the kill"
     location = open_location(run.url)
     commits = committed_tasks(location)
     referenced = sorted(path for r in commits for path in (r.shard, r.index_fragment))
     listed = sorted(f"shards/{task}/{name}" for task, names in shard_dirs(run.url).items() for name in names)
-    orphans = sorted(set(listed) - set(referenced))
-    assert set(referenced) <= set(listed)
-    assert {f"shards/{task}/{name}" for task, names in run.half.items() for name in names} <= set(orphans)
+    half = {f"shards/{task}/{name}" for task, names in run.half.items() for name in names}
+    assert listed == referenced
+    assert not half & set(listed)
+    assert "leftover files of interrupted attempts" in run.outputs[-1]
     dataset = open_dataset(run.url)
     assert sorted(set(dataset.index.column("shard").to_pylist())) == sorted(r.shard for r in commits)
     samples = len(dataset)
-    assert sweep_orphans(location) == orphans
+    assert sweep_orphans(location) == []
     remaining = {"/".join(key.split("/")[1:4]) for key in aws_env.keys("resumed/shards/")}
     assert sorted(remaining) == referenced
     assert validate(run.url) == []

@@ -16,18 +16,16 @@ from datagen.errors import ConfigError
 from datagen.pipeline.refine.base import Refiner
 from datagen.pipeline.refine.carve import CarveRefiner
 from datagen.pipeline.refine.none import NoRefiner
-from schemas.config import BUILTIN_POCO_WEIGHTS, GenerationConfig
+from schemas.config import GenerationConfig
 
 RefinerBuilder = Callable[[GenerationConfig, str], Refiner]
 """(config, device) -> the refiner; ``device`` only matters to a learned refiner."""
 
 
 def poco_weights_path(config: GenerationConfig) -> Path:
-    if config.poco_weights == BUILTIN_POCO_WEIGHTS:
-        from datagen.pipeline.refine.poco.refiner import BUILTIN_WEIGHTS
-
-        return BUILTIN_WEIGHTS
-    return Path(config.poco_weights)
+    """The weights file the config names: for "builtin" the shipped file, the one whose content
+    enters the config hash (`schemas.config.builtin_poco_weights`)."""
+    return config.poco_weights_path()
 
 
 @functools.lru_cache(maxsize=4)

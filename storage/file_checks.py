@@ -1,0 +1,113 @@
+"""The dataset-level half of `storage.validate`: do the index, the commit records and the failure
+records agree, and what did interrupted writes leave behind.
+
+Problems mean a reader refuses the dataset or serves other samples than the index promises;
+warnings are harmless leftovers a user may clean up. Every line names its file (and task).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import pyarrow as pa
+
+from schemas.index import INDEX_SCHEMA, CommitRecord
+from storage.index import (
+    INDEX_COVERAGE_FILE,
+    INDEX_FILE,
+    coverage_disagreements,
+    read_coverage,
+    row_count_disagreements,
+    unindexed_tasks,
+)
+from storage.location import RERUN_FIX, DamagedFile, Location, is_temporary
+from storage.parquet import read_parquet
+from storage.writer import commit_path, failure_path, read_failure_records
+
+REFINALISE_FIX = "finish the job (`datagen resume JOB`) to finalise the index again"
+
+
+def check_fragments(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[str], list[pa.Table]]:
+    """Problem lines of the committed index fragments, and those with the index's columns."""
+    lines: list[str] = []
+    tables: list[pa.Table] = []
+    for record in commits:
+        try:
+            fragment = read_parquet(location, record.index_fragment, schema=None)
+        except DamagedFile as exc:
+            lines.append(f"{record.index_fragment}: cannot read index fragment ({exc.problem}); {RERUN_FIX}")
+            continue
+        if fragment.schema.remove_metadata() != INDEX_SCHEMA:
+            lines.append(f"{record.index_fragment}: index columns differ from the schema")
+            continue
+        if fragment.num_rows != record.num_samples:
+            lines.append(f"{record.index_fragment}: {fragment.num_rows} rows for {record.num_samples} samples")
+        tables.append(fragment.cast(INDEX_SCHEMA))
+    return lines, tables
+
+
+def check_finalised_index(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[str], pa.Table | None]:
+    """Problem lines where ``index.json``/``index.parquet`` disagree with the commit records, and
+    the finalised table when it covers exactly the commits (the index readers would use)."""
+    try:
+        coverage = read_coverage(location)
+    except DamagedFile as exc:
+        return [f"{exc.relative}: {exc.problem}; {REFINALISE_FIX}"], None
+    if coverage is None:
+        return [], None  # never finalised: readers merge the fragments (checked on their own)
+    named = dict(coverage_disagreements(coverage, commits))
+    lines = [f"{INDEX_COVERAGE_FILE}: task {task} {what}; {RERUN_FIX}" for task, what in named.items()]
+    lines += [
+        f"{commit_path(task)}: task {task} is committed but not in the finalised index ({INDEX_COVERAGE_FILE}); "
+        f"{REFINALISE_FIX}"
+        for task in unindexed_tasks(coverage, commits)
+    ]
+    if not location.exists(INDEX_FILE):
+        return [*lines, f"{INDEX_FILE}: missing although {INDEX_COVERAGE_FILE} lists {len(coverage)} tasks"], None
+    try:
+        table = read_parquet(location, INDEX_FILE)
+    except DamagedFile as exc:
+        return [*lines, f"{INDEX_FILE}: {exc.problem}; {REFINALISE_FIX}"], None
+    covered = [r for r in commits if r.task_id in coverage]  # tasks committed since have no rows yet
+    lines += [
+        f"{INDEX_FILE}: task {task} {what}"
+        for task, what in row_count_disagreements(table, covered)
+        if task not in named  # one line per lost commit record, not two
+    ]
+    covers_commits = coverage == {r.task_id: r.attempt_id for r in commits}
+    return lines, table if covers_commits else None
+
+
+def check_failures(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[str], list[str]]:
+    """(problems, warnings) of the failure records: unparsable ones are problems; a failure record
+    beside a commit record is a stale leftover (see `storage.writer.write_failure`), a warning."""
+    records, problems = read_failure_records(location)
+    committed = {r.task_id for r in commits}
+    warnings = [
+        f"{failure_path(r.task_id)}: stale: task {r.task_id} is committed ({commit_path(r.task_id)}), and readers "
+        "and `shards ls` follow the commit; safe to delete"
+        for r in sorted(records, key=lambda r: r.task_id)
+        if r.task_id in committed
+    ]
+    return problems, warnings
+
+
+def leftover_temporaries(location: Location) -> list[str]:
+    """A warning per temporary file of an interrupted write (a full disk, a killed writer)."""
+    return [
+        f"{relative}: leftover temporary file of an interrupted write; readers never open it; "
+        "safe to delete while no job writes to this dataset"
+        for relative in _files(location)
+        if is_temporary(relative)
+    ]
+
+
+def _files(location: Location) -> Iterator[str]:
+    """Every file below the root, relative to it, sorted (one recursive listing)."""
+    root = location.root.strip("/")
+    try:
+        found = location.fs.find(location.root)
+    except FileNotFoundError:
+        return
+    for path in sorted(str(p).strip("/") for p in found):
+        yield path.removeprefix(root).strip("/")

@@ -1,0 +1,372 @@
+"""Readers never serve a damaged dataset: `open_dataset`, ``Dataset[i]``, iteration and
+`OSVPDataset` raise one `StorageError` line naming the file (relative to the dataset), the dataset
+URL and the fix (`datagen shards validate URL`), for every kind of damage `storage.validate` sees.
+
+Every case damages a fresh copy of one small finalised dataset (two built-ins, `support.storage`).
+Before these checks, a deleted chunk file read back as zeros, a deleted commit record silently
+dropped a task, and a truncated file raised a bare ``ValueError``/``KeyError``/``ArrowInvalid``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+import pytest
+from support import storage as fx
+
+from schemas.index import FailureRecord
+from schemas.version import SCHEMA_VERSION
+from storage import StorageError
+from storage.location import open_location
+from storage.reader import Dataset, finalise, open_dataset
+from storage.validate import validate
+from storage.writer import commit_path, failure_path, fragment_path, read_failures, shard_path, write_failure
+
+FIRST, SECOND = sorted(fx.task_ids())
+SHARD = shard_path(FIRST, fx.ATTEMPT)
+FRAGMENT = fragment_path(FIRST, fx.ATTEMPT)
+FIX = "datagen shards validate"
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("integrity") / "clean"
+    fx.build_dataset(str(root), finalise_index=True)
+    return root
+
+
+@pytest.fixture
+def ds(clean: Path, tmp_path: Path) -> Path:
+    return fx.copy_dataset(clean, tmp_path / "ds")
+
+
+def assert_one_line(error: BaseException, root: Path, *parts: str) -> str:
+    """The error is a StorageError, one line, naming the dataset, ``parts`` and the fix."""
+    assert isinstance(error, StorageError), repr(error)
+    message = str(error)
+    assert "\n" not in message, message
+    for part in (str(root), *parts, f"{FIX} {root}"):
+        assert part in message, (part, message)
+    return message
+
+
+def assert_validate_names(root: Path, *parts: str) -> None:
+    """`validate` reports the damage as a problem line (it never raises on a damaged file)."""
+    found = validate(str(root), full=True)
+    assert [line for line in found if all(part in line for part in parts)], found
+
+
+def rows_of(dataset: Dataset, task_id: str) -> list[int]:
+    return np.flatnonzero(pc.equal(dataset.index.column("task_id"), task_id).to_numpy(zero_copy_only=False)).tolist()
+
+
+def chunk(root: Path, array: str, shard: str = SHARD) -> Path:
+    found = sorted(p for p in (root / shard / array / "c").rglob("*") if p.is_file())
+    assert len(found) == 1, found
+    return found[0]
+
+
+# -- point 2: a shard with a missing, emptied or truncated file ----------------------------------------
+
+
+def delete_chunk(root: Path, array: str) -> None:
+    chunk(root, array).unlink()
+
+
+def empty_chunk(root: Path, array: str) -> None:
+    os.truncate(chunk(root, array), 0)
+
+
+def truncate_chunk(root: Path, array: str) -> None:
+    path = chunk(root, array)
+    os.truncate(path, path.stat().st_size // 2)
+
+
+DAMAGES: dict[str, Callable[[Path, str], None]] = {"deleted": delete_chunk, "emptied": empty_chunk}
+
+
+@pytest.mark.parametrize("array", ["points_keys", "masks", "observed_offsets"])
+@pytest.mark.parametrize("damage", sorted(DAMAGES))
+def test_missing_chunk_file_is_an_error_not_fill_values(ds: Path, damage: str, array: str) -> None:
+    DAMAGES[damage](ds, array)
+    dataset = open_dataset(str(ds))  # the index is intact: opening works
+    row = rows_of(dataset, FIRST)[0]
+    with pytest.raises(StorageError) as caught:
+        dataset[row]
+    assert_one_line(caught.value, ds, SHARD, array, "re-run the task")
+    # The intact task still reads.
+    assert len(dataset[rows_of(dataset, SECOND)[0]]["points"]) > 0
+    assert_validate_names(ds, SHARD, array)
+
+
+def test_missing_chunk_file_stops_iteration_and_the_torch_dataset(ds: Path) -> None:
+    from torch.utils.data import DataLoader
+
+    from storage.torch import OSVPDataset
+
+    delete_chunk(ds, "points_keys")
+    dataset = open_dataset(str(ds))
+    with pytest.raises(StorageError) as caught:
+        for _ in dataset.iter_shuffled(seed=0):
+            pass
+    assert_one_line(caught.value, ds, SHARD, "points_keys")
+    torch_dataset = OSVPDataset(str(ds), num_points=64)
+    row = rows_of(torch_dataset.dataset, FIRST)[0]
+    with pytest.raises(StorageError) as caught:
+        torch_dataset[row]
+    assert_one_line(caught.value, ds, SHARD, "points_keys")
+    with pytest.raises(StorageError):  # re-raised in the parent from a worker process
+        for _ in DataLoader(torch_dataset, batch_size=16, num_workers=1, multiprocessing_context="fork"):
+            pass
+
+
+@pytest.mark.parametrize("array", ["points_keys", "masks"])
+def test_truncated_chunk_names_the_array(ds: Path, array: str) -> None:
+    truncate_chunk(ds, array)
+    dataset = open_dataset(str(ds))
+    with pytest.raises(StorageError) as caught:
+        dataset[rows_of(dataset, FIRST)[0]]
+    assert_one_line(caught.value, ds, f"{SHARD}/{array}", "truncated or corrupt")
+    assert_validate_names(ds, SHARD, "truncated or corrupt")
+
+
+def test_missing_array_names_it(ds: Path) -> None:
+    shutil.rmtree(ds / SHARD / "points_keys")
+    dataset = open_dataset(str(ds))
+    with pytest.raises(StorageError) as caught:
+        dataset[rows_of(dataset, FIRST)[0]]
+    assert_one_line(caught.value, ds, SHARD, "points_keys")
+    assert_validate_names(ds, SHARD, "points_keys")
+
+
+@pytest.mark.parametrize("metadata", ["zarr.json", "points_keys/zarr.json"])
+def test_unreadable_zarr_metadata_names_it(ds: Path, metadata: str) -> None:
+    (ds / SHARD / metadata).write_text('{"zarr_format": ')
+    dataset = open_dataset(str(ds))
+    with pytest.raises(StorageError) as caught:
+        dataset[rows_of(dataset, FIRST)[0]]
+    assert_one_line(caught.value, ds, SHARD, metadata)
+    assert_validate_names(ds, SHARD, "metadata")
+
+
+def test_missing_shard_group(ds: Path) -> None:
+    shutil.rmtree(ds / SHARD)
+    dataset = open_dataset(str(ds))
+    with pytest.raises(StorageError) as caught:
+        dataset[rows_of(dataset, FIRST)[0]]
+    assert_one_line(caught.value, ds, SHARD, "missing")
+    assert_validate_names(ds, SHARD, "cannot open shard")
+
+
+def test_each_shard_is_listed_once_per_reader(ds: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole-shard check costs one listing per shard per reader, however often the shard
+    drops out of the cache (and selections share what their parent verified)."""
+    import storage.reader as reader_module
+    from storage.shards import ShardReader
+
+    verified: list[str] = []
+    original = ShardReader.verify
+
+    def counting(self: ShardReader) -> None:
+        verified.append(self.relative)
+        original(self)
+
+    monkeypatch.setattr(ShardReader, "verify", counting)
+    monkeypatch.setattr(reader_module, "SHARD_CACHE", 1)
+    dataset = open_dataset(str(ds))
+    order = [rows_of(dataset, FIRST)[0], rows_of(dataset, SECOND)[0]] * 3
+    for i in order:
+        dataset[i]
+    dataset.select(order)[0]
+    assert sorted(verified) == sorted({SHARD, shard_path(SECOND, fx.ATTEMPT)})
+
+
+# -- point 3: the finalised index agrees with the commit records -----------------------------------------
+
+
+def test_deleted_commit_record_refuses_the_finalised_index(ds: Path) -> None:
+    from storage.torch import OSVPDataset
+
+    os.remove(ds / commit_path(FIRST))
+    for open_it in (open_dataset, OSVPDataset):
+        with pytest.raises(StorageError) as caught:
+            open_it(str(ds))
+        assert_one_line(caught.value, ds, "index.json", FIRST, commit_path(FIRST))
+    found = validate(str(ds), full=True)
+    assert [line for line in found if FIRST in line and "index.json" in line and "no commit record" in line]
+
+
+def test_deleted_commit_record_of_a_dataset_never_finalised_still_reads(ds: Path) -> None:
+    """No finalised index (a job still running): the commit records are all there is to follow."""
+    os.remove(ds / "index.json")
+    os.remove(ds / "index.parquet")
+    os.remove(ds / commit_path(FIRST))
+    dataset = open_dataset(str(ds))
+    assert set(dataset.index.column("task_id").to_pylist()) == {SECOND}
+    assert validate(str(ds), full=True) == []
+
+
+def test_task_committed_after_finalise_reads_and_validate_says_the_index_is_stale(tmp_path: Path) -> None:
+    first, second = (next(p for p in fx.payloads() if p.attributes.task_id == t) for t in (FIRST, SECOND))
+    root = tmp_path / "grown"
+    location = fx.build_dataset(str(root), task_payloads=[first], finalise_index=True)
+    fx.build_dataset(str(root), task_payloads=[second])  # a resumed job, not finalised yet
+    assert len(open_dataset(str(root))) == fx.total_samples()
+    found = validate(str(root), full=True)
+    assert len(found) == 1 and commit_path(SECOND) in found[0] and "not in the finalised index" in found[0]
+    finalise(location)
+    assert validate(str(root), full=True) == []
+
+
+def drop_index_rows(root: Path, task_id: str, keep: int) -> None:
+    table = pq.read_table(root / "index.parquet")
+    mask = pc.equal(table.column("task_id"), task_id).to_numpy(zero_copy_only=False)
+    rows = np.flatnonzero(~mask).tolist() + np.flatnonzero(mask)[:keep].tolist()
+    pq.write_table(table.take(sorted(rows)), root / "index.parquet")
+
+
+def test_index_rows_differing_from_the_commit_record_are_refused(ds: Path) -> None:
+    drop_index_rows(ds, FIRST, keep=3)
+    with pytest.raises(StorageError) as caught:
+        open_dataset(str(ds))
+    message = assert_one_line(caught.value, ds, "index.parquet", FIRST)
+    assert "has 3 rows" in message
+    found = validate(str(ds), full=True)
+    assert [line for line in found if line.startswith("index.parquet:") and FIRST in line and "has 3 rows" in line]
+
+
+def test_index_naming_another_attempt_is_refused(ds: Path) -> None:
+    coverage = json.loads((ds / "index.json").read_text())
+    coverage[FIRST] = "someone-else"
+    (ds / "index.json").write_text(json.dumps(coverage))
+    with pytest.raises(StorageError) as caught:
+        open_dataset(str(ds))
+    assert_one_line(caught.value, ds, "index.json", FIRST, "someone-else")
+    assert [line for line in validate(str(ds), full=True) if "index.json" in line and FIRST in line]
+
+
+def test_stale_failure_beside_a_commit_is_a_warning(ds: Path) -> None:
+    from storage.validate import validate_dataset
+
+    record = FailureRecord(
+        schema_version=SCHEMA_VERSION, task_id=FIRST, object_name="capsule", origin="o.txt:1", message="boom"
+    )
+    location = open_location(str(ds))
+    write_failure(location, record)  # committed already: not written
+    assert read_failures(location) == []
+    (ds / failure_path(FIRST)).parent.mkdir(exist_ok=True)
+    (ds / failure_path(FIRST)).write_text(record.model_dump_json())  # a writer killed before removing it
+    found = validate_dataset(str(ds), full=True)
+    assert found.problems == []
+    assert len(found.warnings) == 1 and failure_path(FIRST) in found.warnings[0] and "stale" in found.warnings[0]
+    assert len(open_dataset(str(ds))) == fx.total_samples()
+
+
+# -- point 4: a damaged dataset-level file is named ------------------------------------------------------
+
+
+def truncate(path: Path) -> None:
+    os.truncate(path, path.stat().st_size // 2)
+
+
+FILE_DAMAGES: dict[str, tuple[str, Callable[[Path], None]]] = {
+    "truncated index.parquet": ("index.parquet", lambda root: truncate(root / "index.parquet")),
+    "truncated index.json": ("index.json", lambda root: truncate(root / "index.json")),
+    "truncated commit record": (commit_path(FIRST), lambda root: truncate(root / commit_path(FIRST))),
+    "empty commit record": (commit_path(FIRST), lambda root: os.truncate(root / commit_path(FIRST), 0)),
+    "truncated dataset.json": ("dataset.json", lambda root: truncate(root / "dataset.json")),
+    "missing dataset.json": ("dataset.json", lambda root: os.remove(root / "dataset.json")),
+    "truncated fragment (not finalised)": (
+        FRAGMENT,
+        lambda root: (os.remove(root / "index.json"), truncate(root / FRAGMENT)),
+    ),
+    "missing fragment (not finalised)": (
+        FRAGMENT,
+        lambda root: (os.remove(root / "index.json"), os.remove(root / FRAGMENT)),
+    ),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(FILE_DAMAGES))
+def test_damaged_file_is_one_line_naming_it(ds: Path, damage: str) -> None:
+    from storage.torch import OSVPDataset
+
+    relative, make = FILE_DAMAGES[damage]
+    make(ds)
+    for open_it in (open_dataset, OSVPDataset):
+        with pytest.raises(StorageError) as caught:
+            open_it(str(ds))
+        assert_one_line(caught.value, ds, f": {relative}: ")
+    found = validate(str(ds), full=True)  # never raises
+    assert [line for line in found if relative in line], found
+
+
+def test_unparsable_failure_record_is_named(ds: Path) -> None:
+    (ds / "failures").mkdir()
+    (ds / failure_path("0000000000000000-r0")).write_text('{"task_id": ')
+    with pytest.raises(StorageError) as caught:
+        open_dataset(str(ds)).failures()
+    assert_one_line(caught.value, ds, failure_path("0000000000000000-r0"))
+    assert [line for line in validate(str(ds), full=True) if failure_path("0000000000000000-r0") in line]
+
+
+# -- point 5: leftovers of interrupted writes ------------------------------------------------------------
+
+LEFTOVERS = (
+    "dataset.json.tmp-0123456789abcdef0123456789abcdef",
+    "index.parquet.tmp-0123456789abcdef0123456789abcdef",
+    f"{commit_path(FIRST)}.tmp-0123456789abcdef0123456789abcdef",
+    f"{FRAGMENT}.tmp-0123456789abcdef0123456789abcdef",
+    f"{SHARD}/points_keys/c/0/0.0123456789abcdef0123456789abcdef.partial",
+)
+
+
+def test_temporary_leftovers_are_warnings_and_never_read(ds: Path, clean: Path) -> None:
+    from storage.validate import validate_dataset
+
+    for relative in LEFTOVERS:
+        (ds / relative).write_bytes(b"partial")
+    found = validate_dataset(str(ds), full=True)
+    assert found.problems == []
+    assert len(found.warnings) == len(LEFTOVERS)
+    for relative in LEFTOVERS:
+        assert [line for line in found.warnings if line.startswith(f"{relative}: ") and "safe to delete" in line]
+    dataset, reference = open_dataset(str(ds)), open_dataset(str(clean))
+    assert dataset.index.equals(reference.index)
+    for i in range(len(dataset)):
+        np.testing.assert_array_equal(dataset[i]["points"], reference[i]["points"])
+
+
+def test_partial_file_does_not_stand_in_for_a_missing_chunk(ds: Path) -> None:
+    stored = chunk(ds, "points_keys")
+    (ds / LEFTOVERS[-1]).write_bytes(stored.read_bytes())
+    stored.unlink()
+    dataset = open_dataset(str(ds))
+    with pytest.raises(StorageError) as caught:
+        dataset[rows_of(dataset, FIRST)[0]]
+    assert_one_line(caught.value, ds, SHARD, "points_keys")
+
+
+def test_a_failed_atomic_write_leaves_no_temporary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A full disk fails the write; the partial temporary file is removed, not left in the dataset."""
+    import storage.location as location_module
+
+    def full_disk(_: int) -> None:
+        raise OSError(28, "No space left on device")
+
+    location = open_location(str(tmp_path / "ds"))
+    monkeypatch.setattr(location_module.os, "fsync", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        location.write_atomic("index.json", b"{}")
+    with pytest.raises(OSError, match="No space left"):
+        location.create_exclusive("commits/x.json", b"{}")
+    assert [p for p in (tmp_path / "ds").rglob("*") if p.is_file()] == []
