@@ -13,6 +13,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from schemas.errors import DatagenError
 
@@ -43,3 +44,12 @@ def user_errors() -> Iterator[None]:
 def say(text: str) -> None:
     """One line on stdout exactly as given: no markup, no highlighting, no wrapping."""
     console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
+def progress_bar(remaining: bool = False) -> Progress:
+    """A transient bar for a long command (``remaining``: with the time left); disabled when output
+    goes to a pipe or a test runner, which get the result lines only."""
+    columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()]
+    if remaining:
+        columns.append(TimeRemainingColumn())
+    return Progress(*columns, console=console, transient=True, disable=not console.is_terminal)

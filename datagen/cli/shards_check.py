@@ -13,9 +13,8 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from datagen.cli.common import UrlArgument, console, say, user_errors
+from datagen.cli.common import UrlArgument, progress_bar, say, user_errors
 
 if TYPE_CHECKING:
     from datagen.inspection.label_check import LabelReport
@@ -25,18 +24,6 @@ def _options(url: str) -> dict[str, Any]:
     from datagen.settings import RunSettings
 
     return RunSettings().storage_options(url)
-
-
-def _progress() -> Progress:
-    return Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        console=console,
-        transient=True,
-        disable=not console.is_terminal,  # a pipe or a test runner gets the result lines only
-    )
 
 
 def validate(
@@ -61,7 +48,7 @@ def validate(
             checker: ShardLabelCheck | None = ShardLabelCheck(open_location(url, options), full=every, seed=seed)
         except StorageError:  # dataset.json unreadable: storage's own line says so
             checker = None
-        with _progress() as bar:
+        with progress_bar() as bar:
             shards = bar.add_task("shards: structure, coverage, labels", total=None)
             found = validate_dataset(
                 url,
@@ -119,7 +106,7 @@ def relabel(
     from datagen.engine.relabel import RelabelProgress, relabel_dataset
 
     with user_errors():
-        with _progress() as bar:
+        with progress_bar() as bar:
             task = bar.add_task("relabelling tasks", total=None)
 
             def advance(state: RelabelProgress) -> None:

@@ -10,22 +10,8 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from datagen.cli.common import console, say, user_errors
-
-
-def _progress() -> Progress:
-    return Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=console,
-        transient=True,
-        disable=not console.is_terminal,  # a pipe or a test runner gets the summary lines only
-    )
+from datagen.cli.common import progress_bar, say, user_errors
 
 
 def export(
@@ -57,7 +43,7 @@ def export(
     with user_errors():
         check_layout(layout)
         options = RunSettings().storage_options(url)
-        with _progress() as bar:
+        with progress_bar(remaining=True) as bar:
             task = bar.add_task("exporting samples", total=None)
             summary = export_air(
                 url,
