@@ -322,6 +322,17 @@ def run_datagen(args: Sequence[str], timeout: float = 240) -> subprocess.Complet
 # ---------------------------------------------------------------------------------------------------------
 
 
+def wait_for_done_tasks(process: DatagenProcess, home: Path, count: int, before: str) -> None:
+    """Wait until the ledger under ``home`` shows ``count`` tasks done while ``process`` still runs
+    (``before``: what the test does next, for the message if the process ends first)."""
+
+    def done_while_running() -> bool:
+        assert process.poll() is None, f"the driver ended before the {before}:\n{process.output()}"
+        return done_count(home) >= count
+
+    wait_until(done_while_running, timeout=180, interval=0.05, what=f"{count} tasks done")
+
+
 def start_local_ray(num_cpus: int) -> None:
     """A private local Ray with ``num_cpus`` worker CPUs, started the way the engine starts it."""
     import ray

@@ -36,6 +36,7 @@ from support.engine import (
     start_local_ray,
     stop_local_ray,
     summarize,
+    wait_for_done_tasks,
     wait_until,
     write_config,
     write_objects,
@@ -197,11 +198,7 @@ def test_driver_sigkill_then_resume(reference, no_local_ray, inputs: Path, tmp_p
     with datagen_processes() as start:
         driver = start([*submit_args(inputs), "--workers", "1", "--home", str(home)], tmp_path / "submit.log")
 
-        def few_done() -> bool:
-            assert driver.poll() is None, f"the driver ended before the kill:\n{driver.output()}"
-            return done_count(home) >= 3
-
-        wait_until(few_done, timeout=180, interval=0.05, what="3 tasks done")
+        wait_for_done_tasks(driver, home, 3, before="kill")
         driver.sigkill()
         job = only_job(home)
         assert job is not None
@@ -256,11 +253,7 @@ def test_resume_beside_the_running_driver(reference, no_local_ray, inputs: Path,
     with datagen_processes() as start:
         first = start([*submit_args(inputs), "--workers", "1", "--home", str(home)], tmp_path / "submit.log")
 
-        def some_done() -> bool:
-            assert first.poll() is None, f"the job ended before the resume:\n{first.output()}"
-            return done_count(home) >= 2
-
-        wait_until(some_done, timeout=180, interval=0.05, what="2 tasks done")
+        wait_for_done_tasks(first, home, 2, before="resume")
         job = only_job(home)
         assert job is not None
         second = start(["resume", job.job_id, "--home", str(home), "--workers", "1"], tmp_path / "resume.log")
@@ -291,11 +284,7 @@ def test_cancel_while_submit_runs(no_local_ray, inputs: Path, tmp_path: Path) ->
     with datagen_processes() as start:
         driver = start([*submit_args(inputs), "--workers", "1", "--home", str(home)], tmp_path / "submit.log")
 
-        def some_done() -> bool:
-            assert driver.poll() is None, f"the job ended before the cancel:\n{driver.output()}"
-            return done_count(home) >= 2
-
-        wait_until(some_done, timeout=180, interval=0.05, what="2 tasks done")
+        wait_for_done_tasks(driver, home, 2, before="cancel")
         job = only_job(home)
         assert job is not None
         cancelled_at = time.monotonic()
