@@ -16,6 +16,7 @@ __all__ = [
     "ObjectError",
     "ObjectsFileError",
     "OutputError",
+    "PlannerError",
     "ViewSpaceError",
 ]
 
@@ -42,3 +43,7 @@ class InvalidArgument(DatagenError, ValueError):
 
 class OutputError(DatagenError):
     """An output location cannot be created or written."""
+
+
+class PlannerError(DatagenError):
+    """A planner for `datagen evaluate` is unknown, or its checkpoint is missing or unusable."""

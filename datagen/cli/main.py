@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import typer
 
-from datagen.cli import inputs, jobs, poco
+from datagen.cli import evaluate, inputs, jobs, poco
 from datagen.cli.shards import shards_app
 
 app = typer.Typer(
@@ -28,6 +28,7 @@ app.command("resume")(jobs.resume)
 app.command("status")(jobs.status)
 app.command("cancel")(jobs.cancel)
 app.command("serve")(jobs.serve)
+app.command("evaluate")(evaluate.evaluate)
 app.add_typer(shards_app, name="shards")
 app.add_typer(poco_app, name="poco")
 

@@ -14,14 +14,22 @@ Pure numpy; no RNG is used.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 import numpy.typing as npt
 
 from datagen.errors import InvalidArgument
 
-__all__ = ["MAX_HELD_KARP_NODES", "held_karp", "local_path_length", "order_views", "path_matrix"]
+__all__ = [
+    "MAX_HELD_KARP_NODES",
+    "held_karp",
+    "local_path_length",
+    "open_path_heuristic",
+    "order_views",
+    "path_matrix",
+    "visit_order",
+]
 
 MAX_HELD_KARP_NODES = 20
 """The DP table holds 2^(n-1)·n float64: 80 MB at n = 20, and the next node doubles it."""
@@ -206,3 +214,69 @@ def order_views(
     weights = path_matrix(pts[nodes], centre, radius)
     order, cost = held_karp(weights, start=0)
     return [nodes[i] for i in order], cost
+
+
+def open_path_heuristic(weights: npt.ArrayLike, start: int = 0) -> tuple[list[int], float]:
+    """A short open path from `start` through every node when Held-Karp's table is too large.
+
+    Nearest neighbour (ties to the lower index), then 2-opt reversals of any stretch after the start and
+    relocations of single nodes, until no such move shortens the path. Deterministic; not proven optimal,
+    so callers report it as approximate.
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    if w.ndim != 2 or w.shape[0] != w.shape[1] or w.shape[0] == 0 or not np.all(np.isfinite(w)):
+        raise InvalidArgument(f"weights must be a non-empty square matrix of finite numbers, got shape {w.shape}")
+    n = w.shape[0]
+    if not (0 <= start < n):
+        raise InvalidArgument(f"start must be a node index in [0, {n}), got {start}")
+    order = [start]
+    left = set(range(n)) - {start}
+    while left:
+        here = order[-1]
+        nearest = min(left, key=lambda j: (w[here, j], j))
+        order.append(nearest)
+        left.remove(nearest)
+
+    def length(path: list[int]) -> float:
+        return float(sum(float(w[a, b]) for a, b in itertools.pairwise(path)))
+
+    best = length(order)
+    improved = True
+    while improved:
+        improved = False
+        for candidate in _neighbours(order):
+            cost = length(candidate)
+            if cost < best - 1e-12:
+                order, best, improved = candidate, cost, True
+                break
+    return order, best
+
+
+def _neighbours(order: list[int]) -> Iterator[list[int]]:
+    """Paths one move away, the start kept first: 2-opt reversals, then single-node relocations."""
+    n = len(order)
+    for i in range(1, n - 1):
+        for j in range(i + 1, n):
+            yield order[:i] + order[i : j + 1][::-1] + order[j + 1 :]
+    for i in range(1, n):
+        rest = order[:i] + order[i + 1 :]
+        for k in range(1, n):
+            if k != i:
+                yield [*rest[:k], order[i], *rest[k:]]
+
+
+def visit_order(
+    initial_view: int,
+    planned_views: Sequence[int],
+    positions: npt.ArrayLike,
+    centre: npt.ArrayLike,
+    radius: float,
+) -> tuple[list[int], float, bool]:
+    """`order_views` when Held-Karp can take the set (exact: True), else `open_path_heuristic` (False)."""
+    nodes = [int(initial_view), *sorted({int(v) for v in planned_views} - {int(initial_view)})]
+    if len(nodes) <= MAX_HELD_KARP_NODES:
+        order, cost = order_views(initial_view, planned_views, positions, centre, radius)
+        return order, cost, True
+    pts = _points(positions, "positions")
+    order_idx, cost = open_path_heuristic(path_matrix(pts[nodes], centre, radius), start=0)
+    return [nodes[i] for i in order_idx], cost, False

@@ -15,6 +15,8 @@ class Purpose(IntEnum):
     GROUND_TRUTH = 0
     CASES = 1
     REFINER_NOISE = 2
+    EVALUATION = 3
+    """`datagen evaluate`'s seeded baselines (the random planner), per initial view."""
 
 
 def stream(seed: int, object_id: str, rotation: int, purpose: Purpose, mask: int | None = None) -> np.random.Generator:

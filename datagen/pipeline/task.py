@@ -18,7 +18,7 @@ import numpy.typing as npt
 
 from datagen.pipeline.cases import long_tail_cases
 from datagen.pipeline.coverage import Coverage, coverage_table, filter_to_ground_truth
-from datagen.pipeline.imaging import Observation
+from datagen.pipeline.imaging import Observation, TaskImaging
 from datagen.pipeline.keys import key_centres, unpack_keys
 from datagen.pipeline.objects.prepare import PreparedObject
 from datagen.pipeline.random_streams import Purpose, stream
@@ -93,6 +93,59 @@ def sample_id(task_id: str, case: int) -> str:
     return f"{task_id}-{case:016x}"
 
 
+@dataclass(frozen=True)
+class RefinedViews:
+    """One task scanned and every single view refined: what labels and inputs are built from."""
+
+    scan: TaskImaging
+    refined: tuple[PackedKeys, ...]
+    """P(O_i) for every view i: the network input of single-view case i."""
+    sets: TaskSets
+
+
+def refine_views(
+    scan: TaskImaging, refiner: Refiner, config: GenerationConfig, object_id: str, rotation: int
+) -> RefinedViews:
+    """Refine every single view of a scanned task and keep the sets labels are computed from."""
+    singles = list(scan.observations)
+    single_refined = _refine(refiner, singles, config, object_id, rotation)
+    sets = TaskSets(
+        visible=tuple(o.keys for o in singles),
+        refined=tuple(filter_to_ground_truth(single_refined, scan.ground_truth.keys)),
+        ground_truth=scan.ground_truth.keys,
+    )
+    return RefinedViews(scan=scan, refined=tuple(single_refined), sets=sets)
+
+
+def case_inputs(
+    views: RefinedViews,
+    cases: Sequence[int],
+    refiner: Refiner,
+    config: GenerationConfig,
+    object_id: str,
+    rotation: int,
+) -> dict[int, tuple[PackedKeys, PackedKeys]]:
+    """(P(O_S), keys(O_S)) for each case S: the one place a planner's input is built.
+
+    A single view's input is its refinement from `refine_views`; a multi-view case refines the
+    combined observation of its views. Generation and `datagen evaluate` both call this, so what a
+    network is trained on and what it is tested on cannot drift apart.
+    """
+    singles = views.scan.observations
+    inputs: dict[int, tuple[PackedKeys, PackedKeys]] = {}
+    for case in cases:
+        if case.bit_count() == 1:
+            view = case.bit_length() - 1
+            inputs[case] = (views.refined[view], singles[view].keys)
+    multi = sorted({c for c in cases if c.bit_count() > 1}, key=lambda c: (c.bit_count(), c))
+    combined = [Observation.combine([singles[v] for v in _views(c)]) for c in multi]
+    for case, observation, points in zip(
+        multi, combined, _refine(refiner, combined, config, object_id, rotation), strict=True
+    ):
+        inputs[case] = (points, observation.keys)
+    return inputs
+
+
 def run_task(
     prepared: PreparedObject,
     rotation: int,
@@ -110,28 +163,15 @@ def run_task(
     timings["scan"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    singles = list(scan.observations)
-    single_refined = _refine(refiner, singles, config, spec.object_id, rotation)
-    refined_in_gt = filter_to_ground_truth(single_refined, scan.ground_truth.keys)
-    sets = TaskSets(
-        visible=tuple(o.keys for o in singles),
-        refined=tuple(refined_in_gt),
-        ground_truth=scan.ground_truth.keys,
-    )
+    views = refine_views(scan, refiner, config, spec.object_id, rotation)
+    sets = views.sets
     cases = long_tail_cases(sets.visible, stream(config.seed, spec.object_id, rotation, Purpose.CASES))
-    multi = [c for c in cases if c.bit_count() > 1]
-    combined = [Observation.combine([singles[v] for v in _views(c)]) for c in multi]
-    multi_refined = _refine(refiner, combined, config, spec.object_id, rotation)
+    inputs = case_inputs(views, cases, refiner, config, spec.object_id, rotation)
     timings["refine"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    inputs: dict[int, tuple[PackedKeys, PackedKeys]] = {}
-    for view, observation in enumerate(singles):
-        inputs[1 << view] = (single_refined[view], observation.keys)
-    for case, observation, points in zip(multi, combined, multi_refined, strict=True):
-        inputs[case] = (points, observation.keys)
     coverage = coverage_table(sets.refined, config.alpha)
-    labels, failures = _label_cases(coverage, cases, config, threads)
+    labels, failures = label_cases(coverage, cases, config, threads)
     samples, dropped = [], 0
     for case in cases:
         if case not in labels:
@@ -176,7 +216,7 @@ def relabel(
 ) -> tuple[Coverage, dict[int, CoverResult], list[CaseFailure]]:
     """P_full, coverage and labels for ``config.alpha`` from the stored P_i alone."""
     coverage = coverage_table(sets.refined, config.alpha)
-    labels, failures = _label_cases(coverage, cases, config, threads)
+    labels, failures = label_cases(coverage, cases, config, threads)
     return coverage, labels, failures
 
 
@@ -191,9 +231,10 @@ def task_metadata(config: GenerationConfig, refiner: Refiner) -> dict[str, objec
     }
 
 
-def _label_cases(
-    coverage: Coverage, cases: Sequence[int], config: GenerationConfig, threads: int
+def label_cases(
+    coverage: Coverage, cases: Sequence[int], config: GenerationConfig, threads: int = 1
 ) -> tuple[dict[int, CoverResult], list[CaseFailure]]:
+    """Each case's exact label on one coverage table; a case the solver cannot label is a failure."""
     solver = TaskCover(coverage.masks, config.num_views, config.solver_time_limit)
     labels: dict[int, CoverResult] = {}
     failures: list[CaseFailure] = []

@@ -1,0 +1,123 @@
+"""``datagen evaluate``: what view sets achieve on real objects (coverage, views, movement), per planner.
+
+A plain function; `datagen.cli.main` registers it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from datagen.cli.common import ConfigOption, error_console, progress_bar, say, user_errors
+from datagen.config_io import load_config
+from datagen.errors import InvalidArgument
+
+EXIT_SOME_FAILED = 1
+
+
+def evaluate(
+    objects: Annotated[Path, typer.Option("--objects", "-o", help="Objects file of the meshes to evaluate on.")],
+    planner: Annotated[
+        list[str],
+        typer.Option(
+            "--planner",
+            "-p",
+            help="oracle, greedy, greedy:K, random, random:K, all or osvp:CHECKPOINT; repeat for several.",
+        ),
+    ],
+    config: ConfigOption = None,
+    refiner: Annotated[
+        list[str] | None,
+        typer.Option("--refiner", "-r", help="none, carve, poisson or poco (default: the config's); repeatable."),
+    ] = None,
+    initial_views: Annotated[
+        str, typer.Option("--initial-views", help="Initial view ids: 'all', '0,8,16' or '0-3'.")
+    ] = "0",
+    rotations: Annotated[
+        str, typer.Option("--rotations", help="Rotations of each object: 'all', '0,4' or '0-7'.")
+    ] = "0",
+    budget_views: Annotated[
+        int | None, typer.Option("--budget-views", help="Most views per run, the initial view included.")
+    ] = None,
+    budget_moves: Annotated[float | None, typer.Option("--budget-moves", help="Most movement per run, metres.")] = None,
+    per_object: Annotated[bool, typer.Option("--per-object", help="Also print one row per object.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the rows (and every run) as JSON instead.")] = False,
+    png: Annotated[
+        Path | None,
+        typer.Option("--png", help="Coverage against movement budget per planner; one picture per object beside it."),
+    ] = None,
+    workers: Annotated[int, typer.Option("--workers", "-w", help="Objects evaluated side by side.")] = 0,
+) -> None:
+    """Simulate the one-shot pipeline on each object and report coverage, views and movement per planner."""
+    from datagen.evaluate.episode import Budget
+    from datagen.evaluate.report import markdown_table, per_object_rows, summarise
+    from datagen.evaluate.run import EvaluationSpec, ObjectOutcome, check_planners, evaluate, parse_selection
+
+    with user_errors():
+        resolved = load_config(config)
+        if budget_views is not None and budget_views < 1:
+            raise InvalidArgument(f"--budget-views {budget_views}: give at least 1 (the initial view counts)")
+        if budget_moves is not None and not budget_moves > 0:
+            raise InvalidArgument(f"--budget-moves {budget_moves}: give a positive number of metres")
+        check_planners(planner)
+        spec = EvaluationSpec(
+            planners=tuple(planner),
+            refiners=tuple(refiner or [resolved.refiner]),
+            rotations=parse_selection(rotations, resolved.rotations, "--rotations"),
+            initial_views=parse_selection(initial_views, resolved.num_views, "--initial-views"),
+            budget=Budget(views=budget_views, metres=budget_moves),
+            pictures=png,
+        )
+        started = time.perf_counter()
+        with progress_bar(remaining=True) as bar:
+            task = bar.add_task("evaluating objects", total=None)
+
+            def finished(outcome: ObjectOutcome) -> None:
+                bar.advance(task)
+                for failure in outcome.failures:
+                    error_console.print(f"error: {failure}", markup=False, highlight=False, soft_wrap=True)
+
+            result = evaluate(objects, resolved, spec, workers=workers or (os.cpu_count() or 1), on_object=finished)
+        for failure in result.failures:
+            error_console.print(f"error: {failure}", markup=False, highlight=False, soft_wrap=True)
+        episodes = result.episodes
+        rows = summarise(episodes)
+        if png is not None and episodes:
+            from datagen.evaluate.figures import draw_budget_curves
+
+            draw_budget_curves(episodes, png)
+        if as_json:
+            print(
+                json.dumps(
+                    {
+                        "config_hash": resolved.config_hash(),
+                        "rows": [row.as_dict() for row in rows],
+                        "per_object": [row.as_dict() for row in per_object_rows(episodes)],
+                        "runs": [episode.as_dict() for episode in episodes],
+                        "failures": result.all_failures,
+                    },
+                    indent=1,
+                )
+            )
+        else:
+            say(markdown_table(rows))
+            if per_object:
+                say("")
+                say(markdown_table(per_object_rows(episodes)))
+            refine: dict[str, list[float]] = {}
+            for outcome in result.outcomes:
+                for name, times in outcome.refine_seconds.items():
+                    refine.setdefault(name, []).extend(times)
+            seconds = ", ".join(f"{name} {sum(v) / len(v):.1f} s" for name, v in refine.items() if v)
+            objects_done = sum(1 for o in result.outcomes if o.episodes)
+            took = f"{len(episodes)} runs on {objects_done} objects in {time.perf_counter() - started:.0f} s"
+            say(took + (f"; refining every view of a scene: {seconds}" if seconds else ""))
+            if png is not None and episodes:
+                say(f"figures: {png} and {sum(len(o.pictures) for o in result.outcomes)} per-object pictures beside it")
+        if result.all_failures:
+            raise typer.Exit(EXIT_SOME_FAILED)

@@ -1,0 +1,201 @@
+"""An evaluation over an objects file: every object x rotation x refiner x initial view x planner.
+
+Each object is imaged once per rotation and refined once per refiner; every planner then answers the
+same situations. Planners that read neither the refined input nor the generator's label (greedy, all,
+random:K) run once per situation, under the refiner label "-". Objects run side by side in worker
+processes (``workers``); the result does not depend on how many (every random draw has its own stream
+and torch is held to one thread per worker). An object that cannot be prepared, or a case the solver
+cannot label, becomes a failure line and the rest goes on.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from datagen.errors import ConfigError, DatagenError, InvalidArgument
+from datagen.evaluate.episode import Budget, Episode, run_episode
+from datagen.evaluate.planners import Planner, make_planner
+from datagen.evaluate.scene import Scene, build_scene
+from datagen.evaluate.situation import RefinedScene, Situation
+from datagen.pipeline.objects.objects_file import read_objects_file
+from datagen.pipeline.objects.prepare import prepare_object
+from datagen.pipeline.objects.spec import ObjectSpec
+from datagen.pipeline.refine.factory import make_refiner
+from datagen.pipeline.setcover import LabelError
+from datagen.pipeline.thread_limits import fixed_torch_threads, single_threaded_blas
+from datagen.pipeline.viewspace import build_view_space
+from schemas.config import GenerationConfig
+
+REFINERS = ("none", "carve", "poisson", "poco")
+
+
+@dataclass(frozen=True)
+class EvaluationSpec:
+    """What to evaluate: the planners, refiners, rotations and initial views, and the budgets."""
+
+    planners: tuple[str, ...]
+    refiners: tuple[str, ...]
+    rotations: tuple[int, ...]
+    initial_views: tuple[int, ...]
+    budget: Budget = field(default_factory=Budget)
+    pictures: Path | None = None
+    """Write one picture per object (first rotation and initial view) as ``<stem>-<NN>-<name>.png`` here."""
+
+
+@dataclass
+class ObjectOutcome:
+    """Everything one object produced."""
+
+    name: str
+    episodes: list[Episode] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+    refine_seconds: dict[str, list[float]] = field(default_factory=dict)
+    """Per refiner, the time to refine all single views of each scene."""
+    pictures: list[Path] = field(default_factory=list)
+
+
+@dataclass
+class Evaluation:
+    config: GenerationConfig
+    spec: EvaluationSpec
+    outcomes: list[ObjectOutcome]
+    failures: list[str]
+    """Objects-file lines that name no usable object."""
+
+    @property
+    def episodes(self) -> list[Episode]:
+        return [e for o in self.outcomes for e in o.episodes]
+
+    @property
+    def all_failures(self) -> list[str]:
+        return [*self.failures, *(f for o in self.outcomes for f in o.failures)]
+
+
+def parse_selection(text: str, count: int, what: str) -> tuple[int, ...]:
+    """``"all"``, ``"3"``, ``"0,8,16"`` or ``"0-7"`` (inclusive) as sorted unique ids below ``count``."""
+    if text.strip() == "all":
+        return tuple(range(count))
+    chosen: set[int] = set()
+    for part in text.split(","):
+        low, dash, high = part.strip().partition("-")
+        try:
+            first, last = int(low), int(high if dash else low)
+        except ValueError:
+            raise InvalidArgument(f"{what} {text!r}: give 'all', ids like 0,8,16 or a range like 0-7") from None
+        if not (0 <= first <= last < count):
+            raise InvalidArgument(f"{what} {text!r}: ids must lie in 0..{count - 1}")
+        chosen.update(range(first, last + 1))
+    return tuple(sorted(chosen))
+
+
+def refiner_config(config: GenerationConfig, refiner: str) -> GenerationConfig:
+    """The config with another refiner, validated like a loaded one."""
+    if refiner not in REFINERS:
+        raise ConfigError(f"unknown refiner {refiner!r}; choose one of {', '.join(REFINERS)}")
+    return GenerationConfig.model_validate({**config.model_dump(), "refiner": refiner})
+
+
+def check_planners(names: Sequence[str]) -> list[Planner]:
+    """Build every planner once up front, so a bad name or checkpoint stops before any imaging."""
+    if not names:
+        raise InvalidArgument("name at least one --planner")
+    return [make_planner(name) for name in names]
+
+
+def evaluate(
+    objects_file: str | Path,
+    config: GenerationConfig,
+    spec: EvaluationSpec,
+    workers: int = 1,
+    on_object: Callable[[ObjectOutcome], None] | None = None,
+) -> Evaluation:
+    """Run the evaluation; ``on_object`` hears about each object as it finishes (in any order)."""
+    check_planners(spec.planners)
+    for refiner in spec.refiners:
+        refiner_config(config, refiner)
+    if not spec.refiners:
+        raise InvalidArgument("name at least one refiner")
+    listing = read_objects_file(objects_file)
+    failures = [str(error) for error in listing.errors]
+    objects = listing.objects
+    outcomes: list[ObjectOutcome] = []
+    jobs = [(index, obj, config, spec) for index, obj in enumerate(objects)]
+    if workers <= 1 or len(jobs) <= 1:
+        for job in jobs:
+            outcomes.append(_evaluate_object(*job))
+            if on_object:
+                on_object(outcomes[-1])
+    else:
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context) as pool:
+            futures = [pool.submit(_evaluate_object, *job) for job in jobs]
+            for future in futures:
+                outcomes.append(future.result())
+                if on_object:
+                    on_object(outcomes[-1])
+    return Evaluation(config=config, spec=spec, outcomes=outcomes, failures=failures)
+
+
+def _evaluate_object(index: int, obj: ObjectSpec, config: GenerationConfig, spec: EvaluationSpec) -> ObjectOutcome:
+    outcome = ObjectOutcome(name=obj.name)
+    with single_threaded_blas(), fixed_torch_threads():
+        try:
+            _evaluate_scenes(index, obj, config, spec, outcome)
+        except DatagenError as exc:
+            outcome.failures.append(f"{obj.name}: {exc}")
+    return outcome
+
+
+def _evaluate_scenes(
+    index: int, obj: ObjectSpec, config: GenerationConfig, spec: EvaluationSpec, outcome: ObjectOutcome
+) -> None:
+    planners = check_planners(spec.planners)
+    prepared = prepare_object(obj, config)
+    view_space = build_view_space(config.view_space)
+    if max(spec.rotations) >= config.rotations:
+        raise InvalidArgument(f"rotation {max(spec.rotations)} is outside the config's 0..{config.rotations - 1}")
+    configs = [refiner_config(config, name) for name in spec.refiners]
+    refiners = [make_refiner(c) for c in configs]
+    for rotation in spec.rotations:
+        scene = build_scene(prepared, rotation, config, view_space)
+        refined = [RefinedScene(scene, r, c) for r, c in zip(refiners, configs, strict=True)]
+        for initial in spec.initial_views:
+            episodes = _evaluate_situation(scene, refined, initial, planners, spec.budget, outcome)
+            outcome.episodes.extend(episodes)
+            if spec.pictures is not None and rotation == spec.rotations[0] and initial == spec.initial_views[0]:
+                from datagen.evaluate.figures import draw_object
+
+                path = spec.pictures.parent / f"{spec.pictures.stem}-{index:02d}-{obj.name}.png"
+                draw_object(scene, episodes, path)
+                outcome.pictures.append(path)
+        for r in refined:
+            if "views" in r.__dict__:  # refined only when some planner needed it
+                outcome.refine_seconds.setdefault(r.refiner.name, []).append(r.refine_seconds)
+
+
+def _evaluate_situation(
+    scene: Scene,
+    refined: list[RefinedScene],
+    initial: int,
+    planners: list[Planner],
+    budget: Budget,
+    outcome: ObjectOutcome,
+) -> list[Episode]:
+    episodes = []
+    for position, refined_scene in enumerate(refined):
+        situation = Situation(refined_scene, initial)
+        for planner in planners:
+            if not planner.uses_refinement and position > 0:
+                continue
+            try:
+                episodes.append(run_episode(planner, situation, budget))
+            except LabelError as exc:
+                outcome.failures.append(
+                    f"{scene.object_name} rotation {scene.rotation} view {initial} ({refined_scene.refiner.name}, "
+                    f"{planner.name}): {exc}"
+                )
+    return episodes

@@ -1,0 +1,142 @@
+"""What a planner is asked at the start of one simulated run, built lazily and once.
+
+`RefinedScene` refines the scene's single views with one refiner, exactly as generation does
+(`datagen.pipeline.task.refine_views` and `case_inputs`), so a planner's input is the sample input a
+dataset would hold for that case, and the oracle's answer is the label it would hold. `Situation` is
+one initial view of a refined scene: trained planners read only `request()`; the baselines may also
+read the truth (the scene, the generator's label, a seeded stream).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import numpy.typing as npt
+
+from datagen.evaluate.scene import Scene
+from datagen.pipeline.coverage import Coverage, coverage_table
+from datagen.pipeline.keys import key_centres, unpack_keys
+from datagen.pipeline.random_streams import Purpose, stream
+from datagen.pipeline.refine.base import Refiner
+from datagen.pipeline.setcover import CoverResult, LabelError, TaskCover
+from datagen.pipeline.task import RefinedViews, case_inputs, refine_views
+from schemas.config import GenerationConfig
+
+
+@dataclass(frozen=True)
+class PlanRequest:
+    """A trained planner's whole input: the sample a dataset would hold for this case, minus its label."""
+
+    initial_view: int
+    num_views: int
+    view_state: npt.NDArray[np.float32]
+    """(n,) 0/1: the views already taken."""
+    points: npt.NDArray[np.float32]
+    """(N, 3) key centres of P(O_S), the refined cloud (a shard's ``points``), metres, task frame."""
+    observed: npt.NDArray[np.float32]
+    """(M, 3) key centres of what the input views saw (a shard's ``observed``)."""
+
+
+class RefinedScene:
+    """A scene with every single view refined by one refiner; the coverage table built on demand."""
+
+    def __init__(self, scene: Scene, refiner: Refiner, config: GenerationConfig) -> None:
+        self.scene = scene
+        self.refiner = refiner
+        self.config = config
+        self.refine_seconds = 0.0
+
+    @cached_property
+    def views(self) -> RefinedViews:
+        started = time.perf_counter()
+        views = refine_views(self.scene.scan, self.refiner, self.config, self.scene.object_id, self.scene.rotation)
+        self.refine_seconds = time.perf_counter() - started
+        return views
+
+    @cached_property
+    def coverage(self) -> Coverage:
+        """P_full and its coverage masks for the config's alpha."""
+        return coverage_table(self.views.sets.refined, self.config.alpha)
+
+    @cached_property
+    def cover(self) -> TaskCover:
+        return TaskCover(self.coverage.masks, self.config.num_views, self.config.solver_time_limit)
+
+    def request(self, initial_view: int) -> PlanRequest:
+        case = 1 << initial_view
+        points, observed = case_inputs(
+            self.views, [case], self.refiner, self.config, self.scene.object_id, self.scene.rotation
+        )[case]
+        state = np.zeros(self.scene.num_views, dtype=np.float32)
+        state[initial_view] = 1.0
+        return PlanRequest(
+            initial_view=initial_view,
+            num_views=self.scene.num_views,
+            view_state=state,
+            points=self._centres(points),
+            observed=self._centres(observed),
+        )
+
+    def label(self, initial_view: int) -> CoverResult:
+        """The label generation computes for the single-view case ``initial_view``."""
+        return self.cover.label(1 << initial_view)
+
+    def _centres(self, packed: npt.NDArray[np.int64]) -> npt.NDArray[np.float32]:
+        return key_centres(unpack_keys(packed), self.config.voxel_size, self.config.grid_offset).astype(np.float32)
+
+
+class Situation:
+    """One initial view of a refined scene: the question every planner answers."""
+
+    def __init__(self, refined: RefinedScene, initial_view: int) -> None:
+        if not (0 <= initial_view < refined.scene.num_views):
+            raise ValueError(f"initial view {initial_view} is outside 0..{refined.scene.num_views - 1}")
+        self.refined = refined
+        self.initial_view = initial_view
+
+    @property
+    def scene(self) -> Scene:
+        return self.refined.scene
+
+    @property
+    def config(self) -> GenerationConfig:
+        return self.refined.config
+
+    @cached_property
+    def _request(self) -> PlanRequest:
+        return self.refined.request(self.initial_view)
+
+    def prepare(self) -> None:
+        """Do the generator's share now (refine every view, build the coverage table and this case's
+        input) so that a planner's timed call measures planning alone."""
+        self.refined.cover  # noqa: B018 (cached property computed for its side effect)
+        self._request  # noqa: B018
+
+    @property
+    def input_seconds(self) -> float:
+        """Time to refine one view of this scene (the scene's single-view refinement time / n): what the
+        one-shot pipeline spends on its input before the planner runs."""
+        return self.refined.refine_seconds / self.scene.num_views
+
+    def request(self) -> PlanRequest:
+        """The sample input for this case (refines the scene's views on first use)."""
+        return self._request
+
+    @cached_property
+    def _label(self) -> CoverResult:
+        return self.refined.label(self.initial_view)
+
+    def oracle_label(self) -> CoverResult:
+        """The generator's exact label for this case (raises `LabelError` if the solver gives up)."""
+        return self._label
+
+    def rng(self) -> np.random.Generator:
+        """A fresh seeded stream for this (object, rotation, initial view), independent of all others."""
+        scene, case = self.scene, 1 << self.initial_view
+        return stream(self.config.seed, scene.object_id, scene.rotation, Purpose.EVALUATION, mask=case)
+
+
+__all__ = ["LabelError", "PlanRequest", "RefinedScene", "Situation"]
