@@ -99,7 +99,7 @@ def draw_object(scene: Scene, episodes: Sequence[Episode], path: Path) -> None:
     runs: list[Episode | None] = list(episodes) or [None]
     columns = min(len(runs), 3)
     rows = math.ceil(len(runs) / columns)
-    height = 4.5 * rows + 0.4
+    height = 4.5 * rows + 0.8
     figure = Figure(figsize=(4.5 * columns, height), dpi=DPI)
     FigureCanvasAgg(figure)
     initial = ", ".join(str(v) for v in sorted({e.initial_view for e in episodes}))
@@ -114,7 +114,7 @@ def draw_object(scene: Scene, episodes: Sequence[Episode], path: Path) -> None:
         axes.set_ylim(-reach, reach)
         axes.set_zlim(-reach, reach)
         axes.set_box_aspect((1, 1, 1))
-    figure.subplots_adjust(left=0.0, right=1.0, bottom=0.02, top=1.0 - 0.75 / height, wspace=0.0)
+    figure.subplots_adjust(left=0.0, right=1.0, bottom=0.02, top=1.0 - 1.1 / height, wspace=0.0)
     _save(figure, path)
 
 

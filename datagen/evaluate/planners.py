@@ -55,7 +55,11 @@ class Planner(Protocol):
 
 
 class ViewScorer(Protocol):
-    """A trained network: one probability per candidate view for a refined cloud and a view state."""
+    """A trained network: one probability per candidate view for a cloud and a view state.
+
+    A scorer with ``source = "observed"`` gets what the input views saw (the paper's "Ours-Sparse");
+    any other gets the refined cloud P(O_S), a shard's ``points``.
+    """
 
     def view_probabilities(
         self, points: npt.NDArray[np.float32], view_state: npt.NDArray[np.float32]
@@ -134,7 +138,8 @@ class ScoredPlanner:
 
     def plan(self, situation: Situation) -> Plan:
         request = situation.request()
-        probabilities = np.asarray(self.scorer.view_probabilities(request.points, request.view_state), dtype=np.float64)
+        cloud = request.observed if getattr(self.scorer, "source", "points") == "observed" else request.points
+        probabilities = np.asarray(self.scorer.view_probabilities(cloud, request.view_state), dtype=np.float64)
         if probabilities.shape != (request.num_views,):
             raise PlannerError(
                 f"planner {self.name} returned {probabilities.shape} probabilities for {request.num_views} views; "

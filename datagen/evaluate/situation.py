@@ -65,6 +65,13 @@ class RefinedScene:
     def cover(self) -> TaskCover:
         return TaskCover(self.coverage.masks, self.config.num_views, self.config.solver_time_limit)
 
+    def relabelled(self, config: GenerationConfig) -> RefinedScene:
+        """The same refined views labelled under another config (another alpha): no new refinement."""
+        other = RefinedScene(self.scene, self.refiner, config)
+        other.__dict__["views"] = self.views  # seeds the cached property
+        other.refine_seconds = self.refine_seconds
+        return other
+
     def request(self, initial_view: int) -> PlanRequest:
         case = 1 << initial_view
         points, observed = case_inputs(

@@ -168,7 +168,7 @@ def test_draw_object_without_runs_still_draws_the_views(tmp_path: Path, capsule_
     """Every planner may fail on a scene; the picture then shows the candidate views alone."""
     target = tmp_path / "empty.png"
     draw_object(capsule_scene, [], target)
-    assert png_size(target) == (450, 490)
+    assert png_size(target) == (450, 530)
 
 
 @pytest.fixture(scope="module")
@@ -190,7 +190,7 @@ def scene_episode(scene: Scene, visited: tuple[int, ...], planner: str) -> Episo
     return episode(steps=steps, curve=curve, visited=visited, planner=planner)
 
 
-@pytest.mark.parametrize(("panels", "size"), [(1, (450, 490)), (2, (900, 490)), (4, (1350, 940))])
+@pytest.mark.parametrize(("panels", "size"), [(1, (450, 530)), (2, (900, 530)), (4, (1350, 980))])
 def test_draw_object_writes_a_png(tmp_path: Path, capsule_scene: Scene, panels: int, size: tuple[int, int]) -> None:
     n = capsule_scene.num_views
     routes = [(0, n // 2, n - 1, 3), (0,), (0, 1, 2, 3, 4, 5), (0, n - 1)][:panels]

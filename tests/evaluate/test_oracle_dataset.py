@@ -85,3 +85,31 @@ def test_oracle_and_input_match_run_task_with_a_refiner_that_adds_keys(tmp_path)
         np.testing.assert_array_equal(situation.request().points, sample.point_centres(config))
         added += sample.points.size - sample.observed.size
     assert added > 0
+
+
+def test_relabelled_scene_labels_like_a_fresh_one_without_refining_again(tmp_path) -> None:
+    from schemas.config import GenerationConfig
+
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:cone\n")
+    config = GenerationConfig(refiner="carve")
+    prepared = prepare_object(read_objects_file(objects).objects[0], config)
+    scene = build_scene(prepared, 0, config, build_view_space(config.view_space))
+    calls = []
+    carve = make_refiner(config)
+
+    class Counting:
+        name, weights_id = carve.name, carve.weights_id
+
+        def refine(self, requests):
+            calls.append(len(requests))
+            return carve.refine(requests)
+
+    refined = RefinedScene(scene, Counting(), config)
+    other = config.model_copy(update={"alpha": 24})
+    relabelled = refined.relabelled(other)
+    fresh = RefinedScene(scene, carve, other)
+    labels = [relabelled.label(v).label for v in range(config.num_views)]
+    assert labels == [fresh.label(v).label for v in range(config.num_views)]
+    assert labels != [refined.label(v).label for v in range(config.num_views)]
+    assert calls == [config.num_views]  # one batch of single views, shared by both alphas
