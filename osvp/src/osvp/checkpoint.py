@@ -1,0 +1,117 @@
+"""Checkpoints: what a trained planner is, saved so that only tensors and plain data come back.
+
+A checkpoint holds the network's preset and view count, the point count it was trained with, the
+training options and history, the dataset it came from, and the model and optimiser states. It is
+read with ``torch.load(weights_only=True)``, so a file cannot run code; anything else wrong with it
+is a `CheckpointError` naming the file and the fix.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from osvp.network import NetworkPreset, OSVPNetwork, build_network
+from schemas.errors import DatagenError
+
+FORMAT = "osvp-checkpoint"
+VERSION = 1
+REQUIRED = ("format", "version", "preset", "num_views", "num_points", "source", "model", "epoch", "training")
+
+
+class CheckpointError(DatagenError):
+    """A checkpoint is missing, corrupt, or does not fit the data it is used with."""
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    path: Path
+    data: dict[str, Any]
+
+    @property
+    def preset(self) -> NetworkPreset:
+        return NetworkPreset.from_dict(self.data["preset"])
+
+    @property
+    def num_views(self) -> int:
+        return int(self.data["num_views"])
+
+    @property
+    def num_points(self) -> int:
+        return int(self.data["num_points"])
+
+    @property
+    def source(self) -> str:
+        return str(self.data["source"])
+
+    @property
+    def epoch(self) -> int:
+        """Epochs completed."""
+        return int(self.data["epoch"])
+
+    @property
+    def training(self) -> dict[str, Any]:
+        """The options the run was started with, the dataset's identity and the history."""
+        return dict(self.data["training"])
+
+    def network(self, device: str | torch.device = "cpu") -> OSVPNetwork:
+        """The trained network, in eval mode."""
+        network = build_network(self.preset, self.num_views)
+        try:
+            network.load_state_dict(self.data["model"])
+        except RuntimeError as exc:
+            first = str(exc).splitlines()[0]
+            raise CheckpointError(f"{self.path}: its weights do not fit its own preset ({first})") from None
+        return network.to(device).eval()
+
+    def require(self, num_views: int, num_points: int | None = None, what: str = "the dataset") -> None:
+        """Refuse data of another view count (and, when given, another point count)."""
+        if num_views != self.num_views:
+            raise CheckpointError(
+                f"{self.path}: trained for {self.num_views} views but {what} has {num_views}; "
+                "use a checkpoint trained on a dataset with this view space"
+            )
+        if num_points is not None and num_points != self.num_points:
+            raise CheckpointError(
+                f"{self.path}: trained on {self.num_points} points per cloud, asked for {num_points}; "
+                f"leave --points out or give {self.num_points}"
+            )
+
+
+def save_checkpoint(path: Path, data: dict[str, Any]) -> None:
+    """Write atomically (temporary file, then rename), so a kill never leaves half a checkpoint."""
+    payload = {"format": FORMAT, "version": VERSION, **data}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    torch.save(payload, temporary)
+    os.replace(temporary, path)
+
+
+def load_checkpoint(path: str | Path) -> Checkpoint:
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: checkpoint not found; give a file written by `osvp train` (best.pt, last.pt)")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError) as exc:
+        reason = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
+        raise CheckpointError(f"{path}: not a readable osvp checkpoint ({reason}); re-run `osvp train`") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: not an osvp checkpoint (no '{FORMAT}' marker); give a file from `osvp train`")
+    if data.get("version") != VERSION:
+        version = data.get("version")
+        raise CheckpointError(f"{path}: checkpoint version {version} is not {VERSION}; retrain with this osvp")
+    missing = [key for key in REQUIRED if key not in data]
+    if missing:
+        raise CheckpointError(f"{path}: checkpoint lacks {', '.join(missing)}; it is damaged, re-run `osvp train`")
+    try:
+        NetworkPreset.from_dict(data["preset"])
+    except (ValueError, TypeError) as exc:
+        raise CheckpointError(f"{path}: bad network preset in checkpoint ({exc})") from None
+    return Checkpoint(path=path, data=data)

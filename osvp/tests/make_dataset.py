@@ -1,0 +1,58 @@
+"""Write a small real dataset for the osvp tests with datagen's pipeline.
+
+Run as a script by conftest.py in a subprocess, so that the osvp test process itself never imports
+datagen: capsule, cone and torus at 2 rotations, refiner none (seconds, no Ray).
+
+    python make_dataset.py OUT
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+from pathlib import Path
+
+from datagen.engine.shard_payload import task_payload
+from datagen.pipeline.objects.objects_file import read_objects_file
+from datagen.pipeline.objects.prepare import prepare_object
+from datagen.pipeline.refine.factory import make_refiner
+from datagen.pipeline.task import run_task
+from datagen.pipeline.viewspace import build_view_space
+from schemas.config import GenerationConfig
+from schemas.dataset import DatasetInfo
+from schemas.version import SCHEMA_VERSION
+from storage import finalise, init_dataset, open_location, write_task
+
+OBJECTS = ("builtin:capsule", "builtin:cone", "builtin:torus")
+
+
+def main(out: str) -> None:
+    config = GenerationConfig(refiner="none", rotations=2)
+    view_space = build_view_space(config.view_space)
+    location = open_location(out)
+    init_dataset(
+        location,
+        DatasetInfo(
+            schema_version=SCHEMA_VERSION,
+            config=config,
+            config_hash=config.config_hash(),
+            view_positions=[tuple(p) for p in view_space.positions.tolist()],
+            versions={},
+            created="2026-01-01T00:00:00",
+        ),
+    )
+    refiner = make_refiner(config)
+    with tempfile.TemporaryDirectory() as folder:
+        listing = Path(folder) / "objects.txt"
+        listing.write_text("".join(f"{source}\n" for source in OBJECTS))
+        specs = read_objects_file(listing).objects
+    for spec in specs:
+        prepared = prepare_object(spec, config)
+        for rotation in range(config.rotations):
+            result = run_task(prepared, rotation, config, view_space, refiner)
+            write_task(location, task_payload(result, config), "a1")
+    finalise(location)
+
+
+if __name__ == "__main__":
+    main(sys.argv[1])

@@ -1,0 +1,68 @@
+"""`datagen evaluate --planner osvp:FILE`: a checkpoint trained by the osvp package plans through the
+`ViewScorer` interface, from the same input a shard holds, and bad checkpoints are one error line."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support.storage import build_dataset, config
+from typer.testing import CliRunner
+
+from datagen.cli.main import app
+from datagen.evaluate.episode import run_episode
+from datagen.evaluate.planners import CHOICE_THRESHOLD, make_planner
+from datagen.evaluate.scene import build_scene
+from datagen.evaluate.situation import RefinedScene, Situation
+from datagen.pipeline.objects.objects_file import read_objects_file
+from datagen.pipeline.objects.prepare import prepare_object
+from datagen.pipeline.refine.factory import make_refiner
+from datagen.pipeline.viewspace import build_view_space
+from schemas.errors import DatagenError
+
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("osvp") is None, reason="the osvp package is not installed")
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from osvp.train import TrainOptions, train
+
+    folder = tmp_path_factory.mktemp("osvp-planner")
+    build_dataset(str(folder / "data"), finalise_index=True)
+    train(TrainOptions(data=str(folder / "data"), out=folder / "run", epochs=1, batch_size=32))
+    return folder / "run" / "best.pt"
+
+
+def test_a_trained_checkpoint_plans_the_views_it_scores_above_one_half(checkpoint: Path, tmp_path: Path) -> None:
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:capsule\n")
+    cfg = config()
+    prepared = prepare_object(read_objects_file(objects).objects[0], cfg)
+    scene = build_scene(prepared, 0, cfg, build_view_space(cfg.view_space))
+    situation = Situation(RefinedScene(scene, make_refiner(cfg), cfg), 3)
+    planner = make_planner(f"osvp:{checkpoint}")
+    assert planner.name == f"osvp:{checkpoint}" and planner.uses_refinement
+    plan = planner.plan(situation)
+    assert plan.probabilities is not None and plan.probabilities.shape == (32,)
+    expected = tuple(int(v) for v in np.flatnonzero(plan.probabilities > CHOICE_THRESHOLD) if v != 3)
+    assert plan.views == expected
+    again = make_planner(f"osvp:{checkpoint}").plan(situation)
+    assert np.array_equal(again.probabilities, plan.probabilities)
+    episode = run_episode(planner, situation)
+    assert episode.visited[0] == 3 and episode.planner == planner.name and episode.refiner == "none"
+
+
+def test_a_damaged_checkpoint_is_a_named_error(tmp_path: Path) -> None:
+    broken = tmp_path / "broken.pt"
+    broken.write_bytes(b"\x00" * 64)
+    with pytest.raises(DatagenError, match="not a readable osvp checkpoint"):
+        make_planner(f"osvp:{broken}")
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:capsule\n")
+    result = CliRunner().invoke(app, ["evaluate", "--objects", str(objects), "-p", f"osvp:{broken}"])
+    assert result.exit_code == 2
+    assert [line for line in result.stderr.splitlines() if line] == [
+        line for line in result.stderr.splitlines() if line.startswith("error:") and "broken.pt" in line
+    ]
