@@ -5,7 +5,7 @@
 # Results of a real run: osvp/recipe/RESULTS.md.
 set -euo pipefail
 work=${1:-recipe-work}
-epochs=${EPOCHS:-12}
+epochs=${EPOCHS:-40}
 objects=$(bash osvp/recipe/objects.sh "$work")
 
 echo "== 1. training set: 40 objects x 4 rotations, POCO refiner (osvp/recipe/training.toml)"
