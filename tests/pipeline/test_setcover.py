@@ -1,8 +1,8 @@
 """Labels (PIPELINE.md section 7, datagen/pipeline/setcover.py) against an independent brute-force oracle
 (tests/support/setcover_oracle.py): the minimum cardinality and the lexicographic tie-break, through every
-solving path (the public HiGHS path, the per-task reduction, the DFS tie-break, the weighted-MIP
-fallback and the fix-one-view-at-a-time tie-break), under different HiGHS thread counts, and on
-every case of two real meshes."""
+solving path (the public path, the per-task reduction, the exact branch-and-bound search for the size and
+the tie-break, HiGHS's MIP and weighted-MIP fallbacks and the fix-one-view-at-a-time tie-break), under
+different HiGHS thread counts, and on every case of two real meshes."""
 
 from __future__ import annotations
 
@@ -23,6 +23,7 @@ from support.setcover_oracle import NoCover, oracle_cover, oracle_minimal
 from datagen.pipeline import setcover
 from datagen.pipeline.coverage import coverage_table
 from datagen.pipeline.setcover import (
+    CoverSearch,
     TaskCover,
     _fix_lexicographic,
     _solve_lexicographic,
@@ -34,7 +35,7 @@ from datagen.pipeline.setcover import (
 )
 
 HYPOTHESIS = {"deadline": None, "database": None, "suppress_health_check": [HealthCheck.too_slow]}
-PROOFS = {"forced", "lp-bound", "mip"}
+PROOFS = {"forced", "lp-bound", "search", "mip"}
 
 
 def as_masks(rows: list[int]) -> np.ndarray:
@@ -126,7 +127,7 @@ def test_solve_min_cover_matches_oracle() -> None:
     print(dict(stats))
     # the tie-break is really exercised: many instances have several minimum covers
     assert stats["ties"] >= 0.4 * stats["instances"], stats
-    assert stats["mip"] >= 10 and stats["lp-bound"] >= 10 and stats["single-view rows"] >= 20, stats
+    assert stats["search"] >= 10 and stats["lp-bound"] >= 10 and stats["single-view rows"] >= 20, stats
 
 
 def test_task_cover_label_matches_oracle() -> None:
@@ -227,55 +228,66 @@ def test_every_tie_break_path_matches_oracle(instance: tuple[int, list[int]]) ->
     assert lexicographic_cover(reduced, candidates, expected.size) == expected.label
     assert _solve_lexicographic(reduced, candidates, expected.size, 10.0, 1) == expected.label
     assert _fix_lexicographic(reduced, candidates, expected.size, 10.0, 1) == expected.label
+    assert CoverSearch().minimum_size(reduced, candidates, 1, len(candidates)) == expected.size
     if expected.size > 1:
-        assert lexicographic_cover(reduced, candidates, expected.size - 1) is None
+        with pytest.raises(setcover.LabelError, match="is not the minimum"):
+            lexicographic_cover(reduced, candidates, expected.size - 1)
+        search = CoverSearch()
+        assert not search.can_cover(reduced, setcover.views_to_mask(candidates), expected.size - 1)
     greedy = greedy_cover(reduced, candidates)
     assert setcover.covers(greedy, reduced) and greedy.bit_count() >= expected.size
 
 
-def test_exhausted_dfs_budget_returns_none() -> None:
-    rows = as_masks([rotate(0b11, i, 8) for i in range(8)])
-    candidates = candidates_of(rows)
-    assert lexicographic_cover(rows, candidates, 4, node_budget=0) is None
-    assert lexicographic_cover(rows, candidates, 4, node_budget=1) is None
-    assert lexicographic_cover(rows, candidates, 4) == 0b01010101
-
-
-def starve_dfs(monkeypatch: pytest.MonkeyPatch) -> Counter[str]:
-    """Make every DFS tie-break run out of budget; count the fallback's calls."""
+def starve_search(monkeypatch: pytest.MonkeyPatch) -> Counter[str]:
+    """Give the exact search no nodes, so that HiGHS answers both the size and the tie-break; count
+    the fallbacks' calls."""
     calls: Counter[str] = Counter()
-    original_dfs, original_mip = setcover.lexicographic_cover, setcover._solve_lexicographic
+    original_size, original_weighted = setcover._solve, setcover._solve_lexicographic
 
-    def starved(rows, candidates, size, node_budget=0):
-        calls["dfs"] += 1
-        result = original_dfs(rows, candidates, size, node_budget=0)
-        if rows.size:
-            assert result is None
-        return result
+    def size(*args, **kwargs):
+        calls["mip"] += 1
+        return original_size(*args, **kwargs)
 
-    def counted(*args, **kwargs):
+    def weighted(*args, **kwargs):
         calls["weighted"] += 1
-        return original_mip(*args, **kwargs)
+        return original_weighted(*args, **kwargs)
 
-    monkeypatch.setattr(setcover, "lexicographic_cover", starved)
-    monkeypatch.setattr(setcover, "_solve_lexicographic", counted)
+    monkeypatch.setattr(setcover, "SEARCH_NODE_BUDGET", 0)
+    monkeypatch.setattr(setcover, "_solve", size)
+    monkeypatch.setattr(setcover, "_solve_lexicographic", weighted)
     return calls
 
 
-def test_public_path_falls_back_to_the_weighted_mip(monkeypatch: pytest.MonkeyPatch) -> None:
-    calls = starve_dfs(monkeypatch)
+def test_public_path_falls_back_to_highs(monkeypatch: pytest.MonkeyPatch) -> None:
+    calls = starve_search(monkeypatch)
+    proofs: Counter[str] = Counter()
 
-    @settings(max_examples=120, **HYPOTHESIS)
-    @given(cases_of())
+    @settings(max_examples=200, **HYPOTHESIS)
+    @given(st.one_of(cases_of(), cover_instances().map(lambda instance: (*instance, 0))))
     def check(instance: tuple[int, list[int], int]) -> None:
         n, full, case = instance
         universe = [m for m in full if m & case == 0]
         result = TaskCover(as_masks(full), n).label(case)
         expected = oracle_cover(universe)
         assert (result.label, result.objective) == (expected.label, expected.size)
+        proofs[result.proof] += 1
+        assert result.proof != "search"
 
     check()
-    assert calls["weighted"] >= 30, calls
+    assert calls["weighted"] >= 30 and calls["mip"] >= 10 and proofs["mip"] == calls["mip"], (calls, proofs)
+
+
+def test_search_budget_is_shared_and_exhaustion_is_none() -> None:
+    rows = as_masks([rotate(0b11, i, 8) for i in range(8)])
+    candidates = candidates_of(rows)
+    assert lexicographic_cover(rows, candidates, 4, node_budget=0) is None
+    assert lexicographic_cover(rows, candidates, 4, node_budget=1) is None
+    assert lexicographic_cover(rows, candidates, 4) == 0b01010101
+    search = CoverSearch(node_budget=3)
+    assert search.minimum_size(rows, candidates, 1, 5) is None
+    assert search.lexicographic(rows, candidates, 4) is None, "the budget spent by minimum_size is gone"
+    assert CoverSearch().minimum_size(rows, candidates, 1, 5) == 4
+    assert CoverSearch().minimum_size(rows, candidates, 4, 4) == 4, "upper is returned when no smaller size"
 
 
 WIDE_TIE = [0x3, 0xFFFFFFFFFFFFFD, 0xA800000000000000, 0xA00000000000000, 0xD00000000000000,
@@ -290,13 +302,13 @@ def test_wide_instance_oracle_and_exact_paths() -> None:
     reduced = minimal_masks(as_masks(WIDE_TIE))
     candidates = candidates_of(reduced)
     assert len(candidates) == 64
-    assert solve_min_cover(as_masks(WIDE_TIE), 64) == expected.label  # the DFS tie-break
+    assert solve_min_cover(as_masks(WIDE_TIE), 64) == expected.label  # the search's tie-break
     assert _fix_lexicographic(reduced, candidates, 4, 10.0, 1) == expected.label
 
 
 def test_wide_instance_public_fallback(monkeypatch: pytest.MonkeyPatch) -> None:
     expected = oracle_cover(WIDE_TIE)
-    starve_dfs(monkeypatch)
+    starve_search(monkeypatch)
     assert solve_min_cover(as_masks(WIDE_TIE), 64) == expected.label
 
 
@@ -339,9 +351,8 @@ THREADS_SCRIPT = textwrap.dedent(
                 for full, n, cases in data]
 
     out = {"plain": labels(), "plain again": labels()}
-    original = setcover.lexicographic_cover
-    setcover.lexicographic_cover = lambda r, c, s: original(r, c, s, node_budget=0)
-    out["weighted"] = labels()
+    setcover.SEARCH_NODE_BUDGET = 0
+    out["highs"] = labels()
     print(json.dumps(out))
     """
 )
@@ -378,11 +389,11 @@ def test_labels_do_not_depend_on_threads_or_runs(tmp_path: Path) -> None:
             proofs[first.proof] += 1
             labels.append(first.label)
         expected.append(labels)
-    assert proofs["mip"] >= 5, proofs
+    assert proofs["search"] >= 5, proofs
     one = labels_in_fresh_process(tmp_path, 1)
     two = labels_in_fresh_process(tmp_path, 2)
     for run in (one, two):
-        assert run["plain"] == run["plain again"] == run["weighted"] == expected
+        assert run["plain"] == run["plain again"] == run["highs"] == expected
 
 
 def test_threads_can_change_within_one_process() -> None:
