@@ -19,8 +19,14 @@ def test_train_then_eval(dataset_url: str, tmp_path: Path, capsys: pytest.Captur
     report = json.loads(capsys.readouterr().out)
     assert set(report) == {"samples", "loss", "precision", "recall", "f1", "exact_accuracy"}
     assert 0 < report["samples"] < 200 and 0.0 <= report["f1"] <= 1.0
+    assert (
+        main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt"), "--split", "train", "--json"]) == 0
+    )
+    trained_on = json.loads(capsys.readouterr().out)
     assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt")]) == 0
-    assert capsys.readouterr().out.startswith("| samples | precision | recall | F1 | exact set | SCLoss |")
+    table = capsys.readouterr().out
+    assert table.startswith("| samples | precision | recall | F1 | exact set | SCLoss |")
+    assert int(table.splitlines()[2].split("|")[1]) == report["samples"] + trained_on["samples"], "train + val = all"
 
 
 def test_sweep_lambda_prints_the_table_shape(dataset_url: str, tmp_path: Path, capsys) -> None:

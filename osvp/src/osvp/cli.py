@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from osvp.checkpoint import load_checkpoint
@@ -68,7 +69,13 @@ def _parser() -> argparse.ArgumentParser:
     eval_cmd = commands.add_parser("eval", help="precision, recall, F1 and exact-set accuracy of a checkpoint")
     common(eval_cmd)
     eval_cmd.add_argument("--checkpoint", type=Path, required=True)
-    eval_cmd.add_argument("--split", choices=("all", "val"), default="all", help="'val': the run's validation part")
+    eval_cmd.add_argument(
+        "--split",
+        choices=("all", "train", "val"),
+        default="all",
+        help="'val': the run's validation samples; 'train': the samples it trained on (the paper's validation "
+        "is drawn from those)",
+    )
     eval_cmd.add_argument("--points", type=int, default=None, help="points per cloud (must be the checkpoint's)")
     eval_cmd.add_argument("--json", action="store_true")
     eval_cmd.set_defaults(run=_eval)
@@ -121,10 +128,15 @@ def _eval(args: argparse.Namespace) -> int:
     bank = _load(args.data, checkpoint.source)
     checkpoint.require(bank.num_views, args.points)
     stored = checkpoint.training["options"]
-    rows = split_rows(bank, stored["split"], stored["val_fraction"], stored["seed"])[1] if args.split == "val" else None
-    if args.split == "val" and checkpoint.training["config_hash"] != bank.config_hash:
-        raise DataError(f"--split val needs the dataset {checkpoint.path} was trained on; give it or use --split all")
-    rows = rows if rows is not None else torch.arange(len(bank)).numpy()
+    if args.split == "all":
+        rows = np.arange(len(bank), dtype=np.int64)
+    else:
+        if checkpoint.training["config_hash"] != bank.config_hash:
+            raise DataError(
+                f"--split {args.split} needs the dataset {checkpoint.path} was trained on; give it or use --split all"
+            )
+        train_rows, val_rows = split_rows(bank, stored["split"], stored["val_fraction"], stored["seed"])
+        rows = val_rows if args.split == "val" else train_rows
     options = TrainOptions(
         data=args.data,
         out=Path("."),
