@@ -70,12 +70,22 @@ def test_carve_keeps_the_hidden_side_and_drops_seen_empty_keys(sphere_scan) -> N
     assert (radii < RADIUS + 0.011).all()
 
 
-def test_band_keys_matches_brute_force() -> None:
-    rng = np.random.default_rng(3)
-    keys = np.unique(rng.integers(-20, 20, size=(40, 3)), axis=0)
+@pytest.mark.parametrize("radius_sq", [0, 1, 2, 8, 9, 25, 30])
+@pytest.mark.parametrize("shape", ["cloud", "shell", "line"])
+def test_band_keys_matches_brute_force(radius_sq: int, shape: str) -> None:
     from datagen.pipeline.keys import pack_keys
     from datagen.pipeline.refine.base import band_offsets
 
+    rng = np.random.default_rng(radius_sq)
+    if shape == "cloud":
+        keys = rng.integers(-20, 20, size=(40, 3))
+    elif shape == "shell":
+        keys = rng.integers(-25, 25, size=(30000, 3))
+        keys = keys[np.abs(np.linalg.norm(keys, axis=1) - 20) < 0.8]
+    else:
+        keys = np.stack([np.arange(-30, 30), np.zeros(60, int), np.full(60, 7)], axis=1)
+    keys = np.unique(keys, axis=0)
     packed = pack_keys(keys)
-    brute = np.unique(pack_keys((keys[:, None, :] + band_offsets(25)[None]).reshape(-1, 3)))
-    assert np.array_equal(band_keys(packed, 25), brute)
+    brute = np.unique(pack_keys((keys[:, None, :] + band_offsets(radius_sq)[None]).reshape(-1, 3)))
+    assert np.array_equal(band_keys(packed, radius_sq), brute)
+    assert np.array_equal(band_keys(packed[:1], radius_sq), np.sort(pack_keys(keys[:1] + band_offsets(radius_sq))))

