@@ -17,7 +17,8 @@ def test_train_then_eval(dataset_url: str, tmp_path: Path, capsys: pytest.Captur
     assert sorted(p.name for p in out.iterdir()) == ["best.pt", "curves.png", "last.pt", "metrics.csv"]
     assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt"), "--split", "val", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert set(report) == {"samples", "loss", "precision", "recall", "f1", "exact_accuracy"}
+    assert set(report) == {"samples", "loss", "precision", "recall", "f1", "exact_accuracy", "view_state_prior"}
+    assert set(report["view_state_prior"]) == {"precision", "recall", "f1", "exact_accuracy"}
     assert 0 < report["samples"] < 200 and 0.0 <= report["f1"] <= 1.0
     assert (
         main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt"), "--split", "train", "--json"]) == 0
@@ -25,8 +26,10 @@ def test_train_then_eval(dataset_url: str, tmp_path: Path, capsys: pytest.Captur
     trained_on = json.loads(capsys.readouterr().out)
     assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt")]) == 0
     table = capsys.readouterr().out
-    assert table.startswith("| samples | precision | recall | F1 | exact set | SCLoss |")
-    assert int(table.splitlines()[2].split("|")[1]) == report["samples"] + trained_on["samples"], "train + val = all"
+    assert table.startswith("| planner | samples | precision | recall | F1 | exact set | SCLoss |")
+    network, prior = table.splitlines()[2:4]
+    assert network.startswith("| network |") and prior.startswith("| view-state prior |")
+    assert int(network.split("|")[2]) == report["samples"] + trained_on["samples"], "train + val = all"
 
 
 def test_sweep_lambda_prints_the_table_shape(dataset_url: str, tmp_path: Path, capsys) -> None:

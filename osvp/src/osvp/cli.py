@@ -19,7 +19,9 @@ import torch
 from osvp.checkpoint import load_checkpoint
 from osvp.data import DataError, SampleBank, split_rows
 from osvp.loss import DEFAULT_LAMBDA
+from osvp.metrics import SetMetrics
 from osvp.network import PRESETS
+from osvp.prior import ViewStatePrior
 from osvp.train import EpochReport, TrainOptions, evaluate_rows, train
 from schemas.errors import DatagenError
 
@@ -128,15 +130,13 @@ def _eval(args: argparse.Namespace) -> int:
     bank = _load(args.data, checkpoint.source)
     checkpoint.require(bank.num_views, args.points)
     stored = checkpoint.training["options"]
-    if args.split == "all":
-        rows = np.arange(len(bank), dtype=np.int64)
-    else:
-        if checkpoint.training["config_hash"] != bank.config_hash:
-            raise DataError(
-                f"--split {args.split} needs the dataset {checkpoint.path} was trained on; give it or use --split all"
-            )
-        train_rows, val_rows = split_rows(bank, stored["split"], stored["val_fraction"], stored["seed"])
-        rows = val_rows if args.split == "val" else train_rows
+    same_data = checkpoint.training["config_hash"] == bank.config_hash
+    if args.split != "all" and not same_data:
+        raise DataError(
+            f"--split {args.split} needs the dataset {checkpoint.path} was trained on; give it or use --split all"
+        )
+    train_rows, val_rows = split_rows(bank, stored["split"], stored["val_fraction"], stored["seed"])
+    rows = {"all": np.arange(len(bank), dtype=np.int64), "train": train_rows, "val": val_rows}[args.split]
     options = TrainOptions(
         data=args.data,
         out=Path("."),
@@ -146,15 +146,21 @@ def _eval(args: argparse.Namespace) -> int:
         seed=int(stored["seed"]),
     )
     loss, metrics = evaluate_rows(checkpoint.network(args.device), bank, rows, checkpoint.num_points, options)
-    result = {"samples": len(rows), "loss": loss, **metrics.as_dict()}
+    # The prior is fitted on the run's own training samples when this is its dataset, else on all.
+    fitted_on = train_rows if same_data else np.arange(len(bank), dtype=np.int64)
+    prior = ViewStatePrior.fit(bank.view_state[fitted_on], bank.labels[fitted_on], options.lambda_)
+    baseline = SetMetrics()
+    baseline.add(torch.from_numpy(prior.probabilities(bank.view_state[rows])), torch.from_numpy(bank.labels[rows]))
+    result = {"samples": len(rows), "loss": loss, **metrics.as_dict(), "view_state_prior": baseline.as_dict()}
     if args.json:
         print(json.dumps(result, indent=1))
     else:
-        print("| samples | precision | recall | F1 | exact set | SCLoss |\n|---|---|---|---|---|---|")
-        print(
-            f"| {result['samples']} | {metrics.precision:.4f} | {metrics.recall:.4f} | {metrics.f1:.4f} | "
-            f"{metrics.exact_accuracy:.4f} | {loss:.4f} |"
-        )
+        print("| planner | samples | precision | recall | F1 | exact set | SCLoss |\n|---|---|---|---|---|---|---|")
+        for name, scores, value in (("network", metrics, f"{loss:.4f}"), ("view-state prior", baseline, "-")):
+            print(
+                f"| {name} | {len(rows)} | {scores.precision:.4f} | {scores.recall:.4f} | {scores.f1:.4f} | "
+                f"{scores.exact_accuracy:.4f} | {value} |"
+            )
     return 0
 
 
