@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,7 +18,6 @@ from datagen.evaluate.scene import Scene, build_scene
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.ground_truth import GroundTruth
 from datagen.pipeline.imaging import Observation, TaskImaging
-from datagen.pipeline.objects.objects_file import read_objects_file
 from datagen.pipeline.objects.prepare import PreparedObject, prepare_object
 from datagen.pipeline.objects.spec import ObjectSpec
 from datagen.pipeline.refine.factory import make_refiner
@@ -41,18 +39,6 @@ EXTRA_GT_KEYS = np.array([31, 37], dtype=np.int64)
 """Keys of P_gt no view sees: coverage_gt divides by 12, coverage by 10."""
 COLUMNS = ([0, 1, 2], [2, 3], [3, 4, 5, 6], [6, 7], [7, 8, 9], [0, 9])
 """Which reference indices each view sees."""
-
-
-@pytest.fixture(scope="module")
-def config() -> GenerationConfig:
-    return GenerationConfig(refiner="none")
-
-
-@pytest.fixture(scope="module")
-def spec(tmp_path_factory: pytest.TempPathFactory) -> ObjectSpec:
-    objects = Path(tmp_path_factory.mktemp("objects")) / "objects.txt"
-    objects.write_text("builtin:capsule\n")
-    return read_objects_file(objects).objects[0]
 
 
 def hand_scene(spec: ObjectSpec) -> Scene:

@@ -27,7 +27,6 @@ from datagen.evaluate.scene import Scene, build_scene
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.ground_truth import GroundTruth
 from datagen.pipeline.imaging import Observation, TaskImaging
-from datagen.pipeline.objects.objects_file import read_objects_file
 from datagen.pipeline.objects.prepare import PreparedObject, prepare_object
 from datagen.pipeline.objects.spec import ObjectSpec
 from datagen.pipeline.random_streams import Purpose, stream
@@ -37,18 +36,6 @@ from schemas.config import GenerationConfig
 
 HAND_COLUMNS = ([0, 1, 2], [2, 3], [3, 4, 5, 6], [6, 7], [7, 8, 9], [0, 9])
 """Six views over a reference of ten keys: which reference indices each view sees."""
-
-
-@pytest.fixture(scope="module")
-def config() -> GenerationConfig:
-    return GenerationConfig(refiner="none")
-
-
-@pytest.fixture(scope="module")
-def spec(tmp_path_factory: pytest.TempPathFactory) -> ObjectSpec:
-    objects = Path(tmp_path_factory.mktemp("objects")) / "objects.txt"
-    objects.write_text("builtin:capsule\n")
-    return read_objects_file(objects).objects[0]
 
 
 def make_scene(spec: ObjectSpec, columns: tuple[list[int], ...] | list[list[int]], reference_size: int) -> Scene:
