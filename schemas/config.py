@@ -90,6 +90,11 @@ class ViewSpaceConfig(_Frozen):
         return self.source not in (BUILTIN_VIEW_SPACE, GENERATED_VIEW_SPACE)
 
 
+FIELDS_ADDED_LATER: dict[str, object] = {"label_tie_break": "index"}
+"""Fields that enter the hash only when they differ from the value that reproduces what datasets
+made before them hold."""
+
+
 class GenerationConfig(_Frozen):
     """Every setting that changes a sample (hashed into every sample and into ``dataset.json``)."""
 
@@ -125,6 +130,11 @@ class GenerationConfig(_Frozen):
     # Section 7: labels
     empty_labels: Literal["keep", "drop"] = "keep"
     solver_time_limit: PositiveFloat = 10.0
+    label_tie_break: Literal["index", "coverage"] = "index"
+    """Which of the equally small covers is the label: 'index' (the lexicographically smallest view
+    indices, PIPELINE.md 7) or 'coverage' (lexicographically smallest with views ranked by how many
+    keys of U each covers, most first: a rule a planner can learn from geometry, where the index
+    order is arbitrary)."""
 
     @field_validator("grid_offset")
     @classmethod
@@ -179,6 +189,9 @@ class GenerationConfig(_Frozen):
         their identity across an upgrade of the shipped weights.
         """
         data = self.model_dump(mode="json")
+        for name, value in FIELDS_ADDED_LATER.items():
+            if data[name] == value:
+                del data[name]  # a dataset made before the field existed keeps its hash
         if self.view_space.is_file:
             data["view_space"]["source"] = "sha256:" + file_sha256(Path(self.view_space.source))
         if self.refiner == "poco" or self.poco_weights != BUILTIN_POCO_WEIGHTS:

@@ -392,8 +392,8 @@ class _Facts:
             "size, one such sample makes it NaN and no best checkpoint is saved; their generator writes none)",
             f"skipped {no_points} samples with no points (their loader cannot read an empty cloud file)",
             f"dataset: {self.dataset.url} (config hash {self.dataset.info.config_hash}, alpha {config.alpha}, "
-            f"refiner {', '.join(refiners)}{weights_text}); labels are HiGHS's lexicographically smallest "
-            "minimum cover, theirs Gurobi's choice",
+            f"refiner {', '.join(refiners)}{weights_text}); labels are exact minimum covers, the lexicographically "
+            f"smallest in the {config.label_tie_break!r} view order, theirs Gurobi's choice",
             f"points: {self.num_points} per cloud (every cloud the same size, as their do_sample: False batching "
             f"needs), drawn from the sample's refined cloud P(O_S) of {voxel_mm} voxel centres without "
             f"replacement, with replacement for the {resampled} samples that have fewer; seeded by "

@@ -99,10 +99,16 @@ def _new_label_lines(storage_lines: list[str], report: LabelReport) -> list[str]
 
 def relabel(
     url: UrlArgument,
-    alpha: Annotated[int, typer.Option("--alpha", min=1, help="The new alpha (views a key needs to enter P_full).")],
     out: Annotated[str, typer.Option("--out", help="Where the new dataset goes (must not hold a dataset).")],
+    alpha: Annotated[
+        int | None, typer.Option("--alpha", min=1, help="The new alpha (views a key needs to enter P_full).")
+    ] = None,
+    tie_break: Annotated[
+        str | None,
+        typer.Option("--tie-break", help="Which minimum cover is the label: 'index' or 'coverage' (config docs)."),
+    ] = None,
 ) -> None:
-    """A new dataset: the same samples labelled for another alpha from the stored sets (no re-imaging)."""
+    """A new dataset: the same samples labelled for another alpha or tie-break from the stored sets (no re-imaging)."""
     from datagen.engine.relabel import RelabelProgress, relabel_dataset
 
     with user_errors():
@@ -113,10 +119,10 @@ def relabel(
                 bar.update(task, completed=state.tasks_done, total=state.tasks_total)
 
             options = _options(url) or _options(out)
-            summary = relabel_dataset(url, alpha, out, storage_options=options, progress=advance)
+            summary = relabel_dataset(url, alpha, out, storage_options=options, progress=advance, tie_break=tie_break)
         say(
-            f"relabelled {summary.samples} samples of {summary.tasks} tasks for alpha {summary.alpha} "
-            f"(source alpha {summary.source_alpha})"
+            f"relabelled {summary.samples} samples of {summary.tasks} tasks for alpha {summary.alpha}, tie-break "
+            f"{summary.tie_break} (source: alpha {summary.source_alpha}, tie-break {summary.source_tie_break})"
         )
         say(f"{summary.seconds:.1f} s, {summary.labels_per_second:.1f} labels/s")
         if summary.dropped_empty or summary.failed_cases:

@@ -1,9 +1,9 @@
-"""Relabel a dataset for another alpha from its stored sets (PIPELINE.md section 8).
+"""Relabel a dataset for another alpha or label tie-break from its stored sets (PIPELINE.md section 8).
 
 A shard keeps each view's P_i, so P_full, the coverage and every label of its stored cases can be
 computed again without imaging or refining anything: the samples' points and observed sets are
 carried over unchanged and only the labels (and their solver records) are new. The result is a new
-dataset with its own config (the source's, alpha changed) and config hash, written task by task
+dataset with its own config (the source's, alpha and tie-break as asked) and config hash, written task by task
 through the same commit protocol as the engine, with the source's failure records carried over.
 """
 
@@ -25,6 +25,7 @@ from pydantic import ValidationError
 from datagen.engine.shard_payload import task_payload
 from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
+from datagen.pipeline.setcover import TIE_BREAKS
 from datagen.pipeline.task import Sample, TaskResult, TaskSets, relabel, sample_id
 from schemas.config import GenerationConfig, MissingConfigFile
 from schemas.dataset import DatasetInfo
@@ -66,6 +67,8 @@ class RelabelSummary:
     out: str
     source_alpha: int
     alpha: int
+    source_tie_break: str
+    tie_break: str
     source_config_hash: str
     config_hash: str
     tasks: int
@@ -85,16 +88,19 @@ class RelabelSummary:
 
 def relabel_dataset(
     url: str,
-    alpha: int,
+    alpha: int | None,
     out_url: str,
     storage_options: dict[str, Any] | None = None,
     progress: Callable[[RelabelProgress], None] | None = None,
+    tie_break: str | None = None,
 ) -> RelabelSummary:
-    """Write a new dataset at ``out_url`` labelling every committed task of ``url`` for ``alpha``."""
+    """Write a new dataset at ``out_url`` labelling every committed task of ``url`` for ``alpha``
+    and ``tie_break`` (None keeps the source's)."""
     started = time.perf_counter()
     source = open_location(url, storage_options)
     info = read_info(source)
-    config = _with_alpha(info.config, alpha)
+    alpha = info.config.alpha if alpha is None else alpha
+    config = _with_labels(info.config, alpha, tie_break or info.config.label_tie_break)
     target = open_location(out_url, storage_options)
     _refuse_existing(target)
     new_info = DatasetInfo(
@@ -125,6 +131,8 @@ def relabel_dataset(
         out=out_url,
         source_alpha=info.config.alpha,
         alpha=alpha,
+        source_tie_break=info.config.label_tie_break,
+        tie_break=config.label_tie_break,
         source_config_hash=info.config_hash,
         config_hash=new_info.config_hash,
         tasks=len(records),
@@ -216,13 +224,15 @@ def _key_sets(shard: ShardReader, name: str, count: int) -> list[npt.NDArray[np.
     return [packed[offsets[i] : offsets[i + 1]] for i in range(count)]
 
 
-def _with_alpha(config: GenerationConfig, alpha: int) -> GenerationConfig:
+def _with_labels(config: GenerationConfig, alpha: int, tie_break: str) -> GenerationConfig:
     if not 1 <= alpha <= config.num_views:
         raise ConfigError(
             f"--alpha {alpha} is outside 1..{config.num_views} (the dataset has {config.num_views} views)"
         )
+    if tie_break not in TIE_BREAKS:
+        raise ConfigError(f"--tie-break {tie_break!r} is not one of {', '.join(TIE_BREAKS)}")
     try:
-        return GenerationConfig.model_validate({**config.model_dump(), "alpha": alpha})
+        return GenerationConfig.model_validate({**config.model_dump(), "alpha": alpha, "label_tie_break": tie_break})
     except ValidationError as exc:
         first = exc.errors()[0]
         raise ConfigError(f"--alpha {alpha}: {first['msg']}") from None

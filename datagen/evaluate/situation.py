@@ -63,7 +63,8 @@ class RefinedScene:
 
     @cached_property
     def cover(self) -> TaskCover:
-        return TaskCover(self.coverage.masks, self.config.num_views, self.config.solver_time_limit)
+        config = self.config
+        return TaskCover(self.coverage.masks, config.num_views, config.solver_time_limit, config.label_tie_break)
 
     def relabelled(self, config: GenerationConfig) -> RefinedScene:
         """The same refined views labelled under another config (another alpha): no new refinement."""

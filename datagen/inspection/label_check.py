@@ -1,7 +1,9 @@
 """Check stored labels against a solve of our own (PIPELINE.md sections 5 and 7).
 
 `storage.validate` only asks whether a label covers its U. Here every checked label must also be a
-minimum cover and, among the minimum covers, the lexicographically smallest sorted tuple of views;
+minimum cover and, among the minimum covers, the lexicographically smallest tuple of views in the
+dataset's tie-break order (by index, or by coverage of U: `setcover.view_order`, whose ranking is
+recounted here from the stored sets);
 the index must hold the same label as the shard. The coverage is rebuilt from the shard's stored P_i
 at the dataset's alpha, and the expected label is found by other means than `datagen.pipeline.setcover`
 (greedy and LP bounds, a MIP, a pruned depth-first search), so a bug there cannot hide here:
@@ -32,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 
 from datagen.pipeline import setcover
+from schemas.config import MAX_VIEWS
 from schemas.index import CommitRecord
 from schemas.shard import LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from storage import (
@@ -154,6 +157,7 @@ class ShardLabelCheck:
         info = read_info(location)
         self.records = read_commits(location)[0]
         self.alpha, self.num_views = info.config.alpha, info.num_views
+        self.tie_break = info.config.label_tie_break
         self.full, self.seed, self.search_limit = full, seed, search_limit
         self.index_rows = _index_rows(location, self.records)
         self.report = LabelReport(shards=len(self.records))
@@ -162,7 +166,15 @@ class ShardLabelCheck:
     def __call__(self, record: CommitRecord, shard: ShardReader) -> None:
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, zlib.crc32(record.task_id.encode())]))
         problems, checked = _check_reader(
-            shard, record, self.alpha, self.num_views, self.full, rng, self.index_rows, self.search_limit
+            shard,
+            record,
+            self.alpha,
+            self.num_views,
+            self.full,
+            rng,
+            self.index_rows,
+            self.search_limit,
+            self.tie_break,
         )
         with self._lock:
             self.report.problems.extend(problems)
@@ -207,6 +219,7 @@ def _check_reader(
     rng: np.random.Generator,
     index_rows: dict[tuple[str, int], tuple[str, int]],
     search_limit: int,
+    tie_break: setcover.TieBreak = "index",
 ) -> tuple[list[LabelProblem], int]:
     """The label problems of an open shard and how many labels were checked."""
     where = record.shard
@@ -218,7 +231,7 @@ def _check_reader(
         return [LabelProblem(where, None, UNREADABLE, line)], 0
     if masks.dtype != MASK_DTYPE or masks.ndim != 2 or masks.shape[1] != 2:
         return [LabelProblem(where, None, UNREADABLE, f"{where}: cannot check labels (masks {masks.shape})")], 0
-    cover = TaskRows.from_masks(full_masks(refined, offsets, alpha), search_limit)
+    cover = TaskRows.from_masks(full_masks(refined, offsets, alpha), search_limit, tie_break, num_views)
     count = masks.shape[0]
     rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
     problems: list[LabelProblem] = []
@@ -284,16 +297,39 @@ class TaskRows:
     reduction is done once per task.
     """
 
-    def __init__(self, distinct: MaskArray, counts: npt.NDArray[np.int64], search_limit: int = SEARCH_LIMIT) -> None:
+    def __init__(
+        self,
+        distinct: MaskArray,
+        counts: npt.NDArray[np.int64],
+        search_limit: int = SEARCH_LIMIT,
+        tie_break: setcover.TieBreak = "index",
+        num_views: int = MAX_VIEWS,
+    ) -> None:
         self.distinct = distinct
         self.counts = counts
         self.undominated = undominated(distinct)
         self.search_limit = search_limit
+        self.tie_break = tie_break
+        self.num_views = num_views
 
     @classmethod
-    def from_masks(cls, masks: npt.ArrayLike, search_limit: int = SEARCH_LIMIT) -> TaskRows:
+    def from_masks(
+        cls,
+        masks: npt.ArrayLike,
+        search_limit: int = SEARCH_LIMIT,
+        tie_break: setcover.TieBreak = "index",
+        num_views: int = MAX_VIEWS,
+    ) -> TaskRows:
         distinct, counts = np.unique(np.asarray(masks, dtype=np.uint64), return_counts=True)
-        return cls(distinct, counts.astype(np.int64), search_limit)
+        return cls(distinct, counts.astype(np.int64), search_limit, tie_break, num_views)
+
+    def view_order(self, case: int) -> list[int] | None:
+        """The tie-break's view order for case S (None: by index), from U's keys with their counts."""
+        if self.tie_break == "index":
+            return None
+        in_universe = (self.distinct & np.uint64(case)) == 0
+        counts = setcover.coverage_counts(self.distinct[in_universe], self.counts[in_universe], self.num_views)
+        return setcover.view_order(counts)
 
     def judge(self, case: int, label: int) -> Iterator[tuple[str, str]]:
         """(kind, text) for each rule the label breaks; nothing when it is the expected label."""
@@ -305,7 +341,7 @@ class TaskRows:
             return
         rows = self.undominated[(self.undominated & np.uint64(case)) == 0]
         try:
-            expected = expected_label(rows, label, self.search_limit)
+            expected = expected_label(rows, label, self.search_limit, self.view_order(case))
         except SolverFailure as exc:
             yield UNSOLVED, f"label {views_text(label)} could not be checked ({exc})"
             return
@@ -315,7 +351,8 @@ class TaskRows:
         elif size < expected.size:
             yield UNSOLVED, f"label {views_text(label)} covers U with k={size} < k*={expected.size}: the check is wrong"
         elif label != expected.label:
-            text = f"label {views_text(label)} is minimum but not the lexicographic choice {views_text(expected.label)}"
+            choice = "lexicographic" if self.tie_break == "index" else f"{self.tie_break} tie-break's"
+            text = f"label {views_text(label)} is minimum but not the {choice} choice {views_text(expected.label)}"
             yield NOT_LEXICOGRAPHIC, text
 
 
@@ -335,8 +372,11 @@ class SolverFailure(Exception):
     """HiGHS did not prove its answer (time limit or error): the label is neither passed nor failed."""
 
 
-def expected_label(rows: MaskArray, label: int, search_limit: int = SEARCH_LIMIT) -> Expected:
-    """The lexicographically smallest minimum cover of ``rows``, given ``label``, a cover, as a bound.
+def expected_label(
+    rows: MaskArray, label: int, search_limit: int = SEARCH_LIMIT, order: Sequence[int] | None = None
+) -> Expected:
+    """The lexicographically smallest minimum cover of ``rows`` (views compared in ``order``, by
+    index when None), given ``label``, a cover, as a bound.
 
     Sizes below |label| are ruled out by trying every combination (or by HiGHS when there are too
     many); at the minimum size, combinations are tried in lexicographic order up to the label's own
@@ -354,7 +394,8 @@ def expected_label(rows: MaskArray, label: int, search_limit: int = SEARCH_LIMIT
     if rest.size == 0:
         return Expected(forced.bit_count(), forced)
     union = int(np.bitwise_or.reduce(rest))
-    candidates = [v for v in range(union.bit_length()) if union >> v & 1]
+    ranking = range(union.bit_length()) if order is None else order
+    candidates = [v for v in ranking if union >> v & 1]
     free = label & union  # the label's views that cover something forced views leave open
     cover = _Bitsets(rest, candidates)
     size, m = free.bit_count(), len(candidates)

@@ -20,6 +20,11 @@ sum(2^(m-1-rank(v))) over covers of size k* (a smaller first differing view outw
 one) gives the same tie-break. Views forced by single-view rows are taken first; they belong to
 every cover.
 
+The tie-break is lexicographic in a *view order*: by view index (`TIE_BREAKS` "index", the
+contract's rule) or, with "coverage", views ranked by how many keys of U each one covers, most
+first, ties by index (`view_order`). Every step above only walks the candidates in that order, so
+both rules share one search, one MIP and one proof.
+
 Why a search before the MIP: the covers are over at most 64 views, labels have a handful of them,
 and every row's views are few, so branching on the row with the fewest views, with a packing bound
 (pairwise disjoint rows each need a view of their own), settles a case in thousands of nodes. On
@@ -31,7 +36,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import highspy
 import numpy as np
@@ -40,6 +47,11 @@ import numpy.typing as npt
 from datagen.errors import DatagenError
 
 MaskArray = npt.NDArray[np.uint64]
+
+TieBreak = Literal["index", "coverage"]
+TIE_BREAKS: tuple[TieBreak, ...] = ("index", "coverage")
+"""Which minimum cover is the label: the lexicographically smallest by view index, or by the views'
+coverage of U (most keys first)."""
 
 EXACT_WEIGHT_VIEWS = 40
 """Above this many candidate views the weighted tie-break would exceed float64's exact integers;
@@ -119,10 +131,15 @@ def minimal_masks(masks: npt.ArrayLike) -> MaskArray:
 class TaskCover:
     """The reduced cover rows of one task (P_full's masks), ready to label any case."""
 
-    def __init__(self, full_masks: npt.ArrayLike, num_views: int, time_limit: float = 10.0) -> None:
+    def __init__(
+        self, full_masks: npt.ArrayLike, num_views: int, time_limit: float = 10.0, tie_break: TieBreak = "index"
+    ) -> None:
+        if tie_break not in TIE_BREAKS:
+            raise LabelError(f"unknown tie-break {tie_break!r}; choose one of {', '.join(TIE_BREAKS)}")
         self.full_masks = np.asarray(full_masks, dtype=np.uint64)
         self.num_views = num_views
         self.time_limit = time_limit
+        self.tie_break = tie_break
         self.minimal = minimal_masks(self.full_masks)
 
     def universe_size(self, case: int) -> int:
@@ -130,11 +147,12 @@ class TaskCover:
         return int(np.count_nonzero((self.full_masks & np.uint64(case)) == 0))
 
     def label(self, case: int, threads: int = 1) -> CoverResult:
-        """The lexicographically smallest minimum cover of U(S), proven optimal."""
+        """The lexicographically smallest minimum cover of U(S) in the tie-break's view order, proven optimal."""
         started = time.perf_counter()
         rows_before = self.universe_size(case)
         rows = self.minimal[(self.minimal & np.uint64(case)) == 0]
-        solution = solve_cover(rows, self.num_views, self.time_limit, threads) if rows.size else None
+        order = self.view_order(case)
+        solution = solve_cover(rows, self.num_views, self.time_limit, threads, order) if rows.size else None
         label = solution.label if solution else 0
         return CoverResult(
             label=label,
@@ -146,6 +164,28 @@ class TaskCover:
             proof=solution.proof if solution else "none",
         )
 
+    def view_order(self, case: int) -> list[int]:
+        """The order the tie-break walks the views in, for case S."""
+        if self.tie_break == "index":
+            return list(range(self.num_views))
+        universe = self.full_masks[(self.full_masks & np.uint64(case)) == 0]
+        return view_order(coverage_counts(universe, None, self.num_views))
+
+
+def coverage_counts(masks: npt.ArrayLike, weights: npt.ArrayLike | None, num_views: int) -> npt.NDArray[np.int64]:
+    """Keys of U each view covers: for every view, the (weighted) number of masks holding its bit."""
+    masks = np.asarray(masks, dtype=np.uint64)
+    bits = (masks[:, None] >> np.arange(num_views, dtype=np.uint64)[None, :]) & np.uint64(1)
+    if weights is None:
+        return bits.sum(axis=0, dtype=np.int64)
+    return (bits.astype(np.int64) * np.asarray(weights, dtype=np.int64)[:, None]).sum(axis=0)
+
+
+def view_order(counts: npt.ArrayLike) -> list[int]:
+    """Views by coverage, most first; equal coverage by index (the "coverage" tie-break's order)."""
+    values = np.asarray(counts, dtype=np.int64)
+    return sorted(range(values.size), key=lambda v: (-int(values[v]), v))
+
 
 @dataclass(frozen=True)
 class CoverSolution:
@@ -155,14 +195,30 @@ class CoverSolution:
     bound), 'search' (`CoverSearch` found no smaller cover) or 'mip' (HiGHS's branch and bound)."""
 
 
-def solve_min_cover(rows: npt.ArrayLike, num_views: int, time_limit: float = 10.0, threads: int = 1) -> int:
+def solve_min_cover(
+    rows: npt.ArrayLike,
+    num_views: int,
+    time_limit: float = 10.0,
+    threads: int = 1,
+    order: Sequence[int] | None = None,
+) -> int:
     """Mask of the lexicographically smallest minimum-cardinality cover of ``rows`` (non-empty
-    masks). Raises `LabelError` unless optimality is proven."""
-    return solve_cover(rows, num_views, time_limit, threads).label
+    masks), views compared in ``order`` (default: by index). Raises `LabelError` unless optimality
+    is proven."""
+    return solve_cover(rows, num_views, time_limit, threads, order).label
 
 
-def solve_cover(rows: npt.ArrayLike, num_views: int, time_limit: float = 10.0, threads: int = 1) -> CoverSolution:
+def solve_cover(
+    rows: npt.ArrayLike,
+    num_views: int,
+    time_limit: float = 10.0,
+    threads: int = 1,
+    order: Sequence[int] | None = None,
+) -> CoverSolution:
     """`solve_min_cover` with the kind of optimality proof."""
+    ranking = list(range(num_views)) if order is None else [int(v) for v in order]
+    if sorted(ranking) != list(range(num_views)):
+        raise LabelError(f"a view order must list each of the {num_views} views once")
     remaining = minimal_masks(rows)
     if (remaining == 0).any():
         raise LabelError("a key is covered by no candidate view: no cover exists")
@@ -174,7 +230,7 @@ def solve_cover(rows: npt.ArrayLike, num_views: int, time_limit: float = 10.0, t
     if remaining.size == 0:
         return CoverSolution(forced, "forced")
     union = int(np.bitwise_or.reduce(remaining))
-    candidates = [v for v in range(num_views) if union >> v & 1]
+    candidates = [v for v in ranking if union >> v & 1]
     greedy = greedy_cover(remaining, candidates)
     bound = _lp_bound(remaining, candidates, time_limit, threads)
     search = CoverSearch(SEARCH_NODE_BUDGET)

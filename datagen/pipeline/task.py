@@ -235,7 +235,7 @@ def label_cases(
     coverage: Coverage, cases: Sequence[int], config: GenerationConfig, threads: int = 1
 ) -> tuple[dict[int, CoverResult], list[CaseFailure]]:
     """Each case's exact label on one coverage table; a case the solver cannot label is a failure."""
-    solver = TaskCover(coverage.masks, config.num_views, config.solver_time_limit)
+    solver = TaskCover(coverage.masks, config.num_views, config.solver_time_limit, config.label_tie_break)
     labels: dict[int, CoverResult] = {}
     failures: list[CaseFailure] = []
     for case in cases:

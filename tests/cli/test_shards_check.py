@@ -575,3 +575,65 @@ def test_judge_names_each_broken_rule() -> None:
     assert list(rows.judge(0b0001, 0b0100)) == []
     assert list(rows.judge(0b1111, 0)) == []  # U empty: the empty label is right
     assert list(rows.judge(0b1111, 0b10000)) == [("not-minimum", "label {4} covers U but is not minimum (k=1 > k*=0)")]
+
+
+def test_judge_follows_the_datasets_tie_break() -> None:
+    # Keys seen by {0,2}, {1,2} (two keys), {0,2} and {0,1}: {0,1}, {0,2} and {1,2} all cover U; view 2 sees
+    # four keys, view 0 and view 1 three each, so the coverage order is 2, 0, 1.
+    masks = [0b101, 0b110, 0b110, 0b101, 0b011]
+    by_index = TaskRows.from_masks(masks, tie_break="index", num_views=3)
+    by_coverage = TaskRows.from_masks(masks, tie_break="coverage", num_views=3)
+    assert by_coverage.view_order(0) == [2, 0, 1] and by_index.view_order(0) is None
+    assert list(by_index.judge(0, 0b011)) == [] and list(by_coverage.judge(0, 0b101)) == []
+    assert list(by_coverage.judge(0, 0b011)) == [
+        ("not-lexicographic", "label {0, 1} is minimum but not the coverage tie-break's choice {0, 2}")
+    ]
+    # With view 2 as the input, U is the one key {0, 1}: views 0 and 1 cover one key each, 0 goes first.
+    assert by_coverage.view_order(0b100) == [0, 1, 2]
+    assert list(by_coverage.judge(0b100, 0b001)) == []
+
+
+@pytest.mark.parametrize("search_limit", [2_000_000, 0], ids=["enumeration", "highs"])
+def test_expected_label_in_a_view_order_matches_the_renamed_oracle(search_limit: int) -> None:
+    rng = np.random.default_rng(3)
+    for n, rows in random_instances(40 if search_limit else 20, seed=13):
+        order = [int(v) for v in rng.permutation(n)]
+        rename = {view: i for i, view in enumerate(order)}
+        truth = oracle_cover([sum(1 << rename[v] for v in range(n) if r >> v & 1) for r in rows])
+        label = sum(1 << order[i] for i in range(n) if truth.label >> i & 1)
+        reduced = undominated(np.array(rows, dtype=np.uint64))
+        expected = expected_label(reduced, (1 << n) - 1, search_limit, order)
+        assert (expected.size, expected.label) == (truth.size, label), (rows, order)
+
+
+def test_relabel_with_the_coverage_tie_break_validates(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
+    out = str(tmp_path / "coverage")
+    result = shards("relabel", engine_dataset.url, "--tie-break", "coverage", "--out", out)
+    assert result.exit_code == 0, result.output
+    old, new = info_of(engine_dataset.url), info_of(out)
+    assert new.config == old.config.model_copy(update={"label_tie_break": "coverage"})
+    assert new.config_hash != old.config_hash and new.config_hash == new.config.config_hash()
+    source_line = f"(source: alpha {old.config.alpha}, tie-break index)"
+    assert any(line.endswith(source_line) for line in result.output.splitlines()), result.output
+    checked = shards("validate", out, "--all")
+    assert checked.exit_code == 0, checked.output
+    a, b = open_dataset(engine_dataset.url), open_dataset(out)
+    before = dict(zip(a.index.column("sample_id").to_pylist(), a.index.column("label").to_pylist(), strict=True))
+    after = dict(zip(b.index.column("sample_id").to_pylist(), b.index.column("label").to_pylist(), strict=True))
+    assert sorted(before) == sorted(after)
+    assert all(int(before[s]).bit_count() == int(after[s]).bit_count() for s in before), "both are minimum covers"
+    assert any(before[s] != after[s] for s in before), "equally small covers exist, so some labels move"
+    # Claiming the other rule in dataset.json makes the same labels wrong for the checker.
+    info_path = Path(out) / "dataset.json"
+    info = json.loads(info_path.read_text())
+    info["config"]["label_tie_break"] = "index"
+    info_path.write_text(json.dumps(info))
+    rechecked = shards("validate", out, "--all")
+    assert rechecked.exit_code == 1 and "not the lexicographic choice" in rechecked.output
+
+
+def test_relabel_with_an_unknown_tie_break(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
+    result = shards("relabel", engine_dataset.url, "--tie-break", "fewest", "--out", str(tmp_path / "out"))
+    assert result.exit_code == 2
+    assert result.output.splitlines() == ["error: --tie-break 'fewest' is not one of index, coverage"]
+    assert not (tmp_path / "out").exists()

@@ -24,6 +24,7 @@ from datagen.pipeline import setcover
 from datagen.pipeline.coverage import coverage_table
 from datagen.pipeline.setcover import (
     CoverSearch,
+    LabelError,
     TaskCover,
     _fix_lexicographic,
     _solve_lexicographic,
@@ -444,3 +445,140 @@ def test_shared_mesh_labels_match_oracle(mesh: str) -> None:
         stats["ties"] += expected.ties > 1
         stats[sample.cover.proof] += 1
     print(mesh, len(result.cases), dict(stats))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The tie-break in a view order (`label_tie_break`). The oracle only knows the order by index, so a view
+# order is checked by renaming the views: view order[i] becomes view i, the oracle picks the
+# lexicographically smallest minimum cover of the renamed rows, and the names are mapped back. The
+# "coverage" order is recounted with plain loops over U's keys (most keys first, ties by index).
+# ---------------------------------------------------------------------------------------------------------
+
+
+def renamed(mask: int, order: list[int]) -> int:
+    """``mask`` with view order[i] renamed to view i."""
+    return sum(1 << i for i, view in enumerate(order) if mask >> view & 1)
+
+
+def named_back(mask: int, order: list[int]) -> int:
+    return sum(1 << view for i, view in enumerate(order) if mask >> i & 1)
+
+
+def oracle_in_order(rows: list[int], order: list[int]) -> tuple[int, int, int]:
+    """(label, size, ties): the lexicographically smallest minimum cover with views compared in ``order``."""
+    found = oracle_cover([renamed(r, order) for r in rows], count_ties=True)
+    return named_back(found.label, order), found.size, found.ties
+
+
+def coverage_order(universe: list[int], n: int) -> list[int]:
+    """Views by the number of U's keys they cover, most first, ties by index (plain loops)."""
+    counts = [sum(1 for key in universe if key >> v & 1) for v in range(n)]
+    return sorted(range(n), key=lambda v: (-counts[v], v))
+
+
+@st.composite
+def ordered_instances(draw: st.DrawFn) -> tuple[int, list[int], list[int]]:
+    n, rows = draw(cover_instances())
+    return n, rows, draw(st.permutations(range(n)), label="view order")
+
+
+def test_solve_cover_in_a_view_order_matches_the_renamed_oracle() -> None:
+    stats: Counter[str] = Counter()
+
+    @settings(max_examples=300, **HYPOTHESIS)
+    @given(ordered_instances())
+    def check(instance: tuple[int, list[int], list[int]]) -> None:
+        n, rows, order = instance
+        label, size, ties = oracle_in_order(rows, order)
+        solution = solve_cover(as_masks(rows), n, order=order)
+        assert solution.label == label, (setcover.mask_to_views(solution.label), setcover.mask_to_views(label))
+        assert solution.label.bit_count() == size
+        stats["instances"] += 1
+        stats["ties"] += ties > 1
+        stats["differs from index"] += label != oracle_cover(rows).label
+
+    check()
+    assert stats["ties"] >= 0.4 * stats["instances"], stats
+    assert stats["differs from index"] >= 0.2 * stats["instances"], stats
+
+
+def test_task_cover_coverage_tie_break_matches_the_oracle() -> None:
+    stats: Counter[str] = Counter()
+
+    @settings(max_examples=250, **HYPOTHESIS)
+    @given(cases_of())
+    def check(instance: tuple[int, list[int], int]) -> None:
+        n, full, case = instance
+        universe = [m for m in full if m & case == 0]
+        result = TaskCover(as_masks(full), n, tie_break="coverage").label(case)
+        if not universe:
+            assert (result.status, result.label) == ("empty", 0)
+            return
+        order = coverage_order(universe, n)
+        label, size, _ = oracle_in_order(universe, order)
+        assert (result.label, result.objective) == (label, size)
+        assert result.label & case == 0
+        index_label = TaskCover(as_masks(full), n).label(case).label
+        assert index_label.bit_count() == size, "both tie-breaks pick a minimum cover"
+        stats["instances"] += 1
+        stats["differs from index"] += index_label != label
+
+    check()
+    assert stats["differs from index"] >= 0.1 * stats["instances"], stats
+
+
+def test_every_exact_path_follows_the_order(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The search, the weighted MIP and the view-by-view MIP each give the oracle's cover."""
+
+    @settings(max_examples=120, **HYPOTHESIS)
+    @given(ordered_instances())
+    def check(instance: tuple[int, list[int], list[int]]) -> None:
+        _, rows, order = instance
+        label, size, _ = oracle_in_order(rows, order)
+        reduced = setcover.minimal_masks(as_masks(rows))
+        singles = [int(r) for r in reduced if int(r).bit_count() == 1]
+        forced = sum(set(singles))
+        rest = reduced[(reduced & np.uint64(forced)) == 0]
+        if rest.size == 0:
+            assert label == forced
+            return
+        union = int(np.bitwise_or.reduce(rest))
+        candidates = [v for v in order if union >> v & 1]
+        need = size - forced.bit_count()
+        assert forced | CoverSearch().lexicographic(rest, candidates, need) == label
+        assert forced | _solve_lexicographic(rest, candidates, need, 10.0, 1) == label
+        assert forced | _fix_lexicographic(rest, candidates, need, 10.0, 1) == label
+
+    check()
+    calls = starve_search(monkeypatch)
+
+    @settings(max_examples=60, **HYPOTHESIS)
+    @given(ordered_instances())
+    def through_highs(instance: tuple[int, list[int], list[int]]) -> None:
+        n, rows, order = instance
+        assert solve_cover(as_masks(rows), n, order=order).label == oracle_in_order(rows, order)[0]
+
+    through_highs()
+    assert calls["weighted"] >= 10, calls
+
+
+def test_coverage_counts_and_order_by_hand() -> None:
+    masks = as_masks([0b011, 0b010, 0b110, 0b100])
+    assert setcover.coverage_counts(masks, None, 3).tolist() == [1, 3, 2]
+    assert setcover.coverage_counts(masks, [5, 1, 1, 2], 3).tolist() == [5, 7, 3]
+    assert setcover.view_order([1, 3, 2]) == [1, 2, 0]
+    assert setcover.view_order([2, 2, 0, 2]) == [0, 1, 3, 2], "equal coverage goes by index"
+
+
+def test_coverage_prefers_the_view_that_sees_most() -> None:
+    """Keys {0,2} {1,2} {1,2} {0,2} {0,1}: {0,1}, {0,2} and {1,2} all cover them; view 2 holds four keys."""
+    full = as_masks([0b101, 0b110, 0b110, 0b101, 0b011])
+    assert TaskCover(full, 3).label(0).views == (0, 1)
+    assert TaskCover(full, 3, tie_break="coverage").label(0).views == (0, 2)
+
+
+def test_bad_tie_break_and_order_are_label_errors() -> None:
+    with pytest.raises(LabelError, match="unknown tie-break 'fewest'"):
+        TaskCover(as_masks([0b11]), 2, tie_break="fewest")  # type: ignore[arg-type]
+    with pytest.raises(LabelError, match="each of the 3 views once"):
+        solve_cover(as_masks([0b011]), 3, order=[0, 0, 1])

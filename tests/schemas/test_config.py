@@ -3,6 +3,7 @@ datagen/config_io.py)."""
 
 from __future__ import annotations
 
+import hashlib
 import shutil
 import tomllib
 from importlib import resources
@@ -13,7 +14,7 @@ import pytest
 from datagen.config_io import config_from_dict, config_to_toml, load_config
 from datagen.errors import ConfigError
 from datagen.settings import RunSettings
-from schemas.config import CameraConfig, GenerationConfig, ViewSpaceConfig
+from schemas.config import CameraConfig, GenerationConfig, ViewSpaceConfig, canonical_json
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 
@@ -154,6 +155,15 @@ def test_round_trip_keeps_float_bits(tmp_path: Path) -> None:
     assert loaded.config_hash() == config.config_hash()
 
 
+def test_fields_added_later_keep_older_hashes_at_their_default() -> None:
+    """A dataset made before ``label_tie_break`` existed (its labels are the 'index' rule's) keeps its hash."""
+    config = GenerationConfig()
+    before_the_field = {k: v for k, v in config.canonical_dict().items() if k != "label_tie_break"}
+    assert "label_tie_break" not in config.canonical_dict()
+    assert config.config_hash() == hashlib.sha256(canonical_json(before_the_field).encode()).hexdigest()
+    assert config_from_dict({"label_tie_break": "coverage"}).canonical_dict()["label_tie_break"] == "coverage"
+
+
 def test_hash_is_sha256_hex() -> None:
     digest = GenerationConfig().config_hash()
     assert len(digest) == 64
@@ -178,6 +188,7 @@ CHANGES = [
     {"alpha": 11},
     {"empty_labels": "drop"},
     {"solver_time_limit": 20.0},
+    {"label_tie_break": "coverage"},
     {"view_space": {"radius": 0.41}},
     {"view_space": {"source": "generated"}},
     {"view_space": {"source": "generated", "generator_seed": 1}},
