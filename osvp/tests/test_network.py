@@ -56,6 +56,19 @@ def test_eval_is_deterministic_and_the_view_state_matters() -> None:
     assert not torch.allclose(first, other)
 
 
+@pytest.mark.parametrize("preset", ["paper", "small"])
+def test_the_point_cloud_encoder_is_the_same_in_train_and_eval_mode(preset: str) -> None:
+    """No dropout in the point transformer: with it, a trained network's eval-mode output (what
+    validation and planning see) blew up on small clouds that training mode handled."""
+    torch.manual_seed(0)
+    encoder = build_network(preset, 8).cloud
+    points = cloud(2, PRESETS[preset].num_points)
+    with torch.no_grad():
+        trained = encoder.train()(points)
+        evaluated = encoder.eval()(points)
+    torch.testing.assert_close(trained, evaluated)
+
+
 def test_preset_round_trip_and_refusals() -> None:
     for preset in PRESETS.values():
         assert NetworkPreset.from_dict(preset.as_dict()) == preset

@@ -2,9 +2,9 @@
 
 - Point cloud: a PoinTr-style encoder. A DGCNN-like grouper picks centres by farthest point sampling
   in two stages and describes each by an edge convolution over its k nearest neighbours; the centres,
-  with a learned embedding of their position, go through a transformer; a max over them and a linear
-  layer give the cloud feature. (PoinTr's blocks add kNN geometric attention; plain self-attention is
-  used here.)
+  with a learned embedding of their position, go through a transformer (no dropout, as PoinTr's); a
+  max over them and a linear layer give the cloud feature. (PoinTr's blocks add kNN geometric
+  attention; plain self-attention is used here.)
 - View state: one token per candidate view (its taken/not-taken bit embedded, plus a learned
   embedding of the view's identity), a transformer, a mean over the views and a linear layer. It
   works for any number of views, which comes from the dataset.
@@ -45,6 +45,7 @@ class NetworkPreset:
     view_heads: int
     feature_dim: int
     dropout: float
+    """Dropout of the view-state transformer and the head (the point transformer has none)."""
 
     def as_dict(self) -> dict[str, object]:
         data = asdict(self)
@@ -134,8 +135,10 @@ class PointCloudEncoder(nn.Module):
         self.stage_two = EdgeConv(width // 4, width // 2)
         self.lift = nn.Linear(width // 2, width)
         self.position = nn.Sequential(nn.Linear(3, width), nn.GELU(), nn.Linear(width, width))
+        # No dropout here (PoinTr's encoder has none): dropout in these blocks trained a network whose
+        # eval-mode output (dropout off) blew up on small clouds, all views at logit ~ +15.
         layer = nn.TransformerEncoderLayer(
-            width, preset.heads, 2 * width, preset.dropout, activation="gelu", batch_first=True, norm_first=True
+            width, preset.heads, 2 * width, 0.0, activation="gelu", batch_first=True, norm_first=True
         )
         self.blocks = nn.TransformerEncoder(layer, preset.depth, enable_nested_tensor=False)
         self.norm = nn.LayerNorm(width)
