@@ -5,7 +5,7 @@
 # Results of a real run: osvp/recipe/RESULTS.md.
 set -euo pipefail
 work=${1:-recipe-work}
-epochs=${EPOCHS:-23}
+epochs=${EPOCHS:-25}
 lambda=${LAMBDA:-2}
 objects=$(bash osvp/recipe/objects.sh "$work")
 
