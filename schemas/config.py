@@ -90,7 +90,10 @@ class ViewSpaceConfig(_Frozen):
         return self.source not in (BUILTIN_VIEW_SPACE, GENERATED_VIEW_SPACE)
 
 
-FIELDS_ADDED_LATER: dict[str, object] = {"label_tie_break": "index"}
+DEFAULT_COVER_CAP = 1024
+"""Minimum covers listed per sample by default (schema version 2)."""
+
+FIELDS_ADDED_LATER: dict[str, object] = {"label_tie_break": "index", "label_cover_cap": DEFAULT_COVER_CAP}
 """Fields that enter the hash only when they differ from the value that reproduces what datasets
 made before them hold."""
 
@@ -135,6 +138,9 @@ class GenerationConfig(_Frozen):
     indices, PIPELINE.md 7) or 'coverage' (lexicographically smallest with views ranked by how many
     keys of U each covers, most first: a rule a planner can learn from geometry, where the index
     order is arbitrary)."""
+    label_cover_cap: int = Field(DEFAULT_COVER_CAP, ge=1, le=1 << 20, strict=True)
+    """Most minimum covers a sample lists beside its label; past it the count of minimum covers is
+    a lower bound (the support, the views of any minimum cover, stays exact)."""
 
     @field_validator("grid_offset")
     @classmethod

@@ -10,7 +10,9 @@ from __future__ import annotations
 import pyarrow as pa
 from pydantic import BaseModel, ConfigDict
 
-INDEX_SCHEMA = pa.schema(
+from schemas.version import SCHEMA_VERSION
+
+INDEX_SCHEMA_V1 = pa.schema(
     [
         pa.field("sample_id", pa.string(), nullable=False),
         pa.field("task_id", pa.string(), nullable=False),
@@ -45,6 +47,29 @@ INDEX_SCHEMA = pa.schema(
 )
 """One row per sample. ``shard`` is relative to the dataset root; ``row`` is the sample's row there.
 Only ``solver_seconds``, ``attempt_id`` and ``shard`` may differ between two runs of one job."""
+
+AMBIGUITY_FIELDS = (
+    pa.field("label_support", pa.uint64(), nullable=False),
+    pa.field("min_covers", pa.int64(), nullable=False),
+    pa.field("min_covers_exact", pa.bool_(), nullable=False),
+)
+"""Version 2: the views of any minimum cover, how many minimum covers there are (a lower bound
+unless ``min_covers_exact``)."""
+
+INDEX_SCHEMAS: dict[int, pa.Schema] = {1: INDEX_SCHEMA_V1, 2: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS])}
+INDEX_SCHEMA = INDEX_SCHEMAS[SCHEMA_VERSION]
+"""The index as this version writes it."""
+
+
+def index_schema_version(schema: pa.Schema) -> int | None:
+    """The layout version whose index columns ``schema`` has (names and types, in order; nullability
+    is not compared), None for none."""
+    found = [(field.name, field.type) for field in schema]
+    for version, known in sorted(INDEX_SCHEMAS.items()):
+        if found == [(field.name, field.type) for field in known]:
+            return version
+    return None
+
 
 VOLATILE_COLUMNS = ("solver_seconds", "attempt_id", "shard")
 

@@ -21,7 +21,15 @@ name                   dtype         shape        meaning
 ``refined_keys``       int16         (R, 3)       per-task P_i = P(O_i) intersected with P_gt
 ``refined_offsets``    int64         (n + 1,)
 ``gt_keys``            int16         (G, 3)       per-task P_gt
+``cover_rows``         uint64        (M,)         per-task undominated masks of P_full (version 2)
+``covers``             uint64        (C,)         each sample's minimum covers (version 2)
+``covers_offsets``     int64         (N + 1,)     sample i owns ``covers[o[i]:o[i+1]]``
 =====================  ============  ===========  ==============================================
+
+Version 2 lets a reader judge any view set without a solver: U(S)'s set cover rows are exactly the
+``cover_rows`` that miss S (a view set covers U when it meets each of them), and ``covers`` lists
+the minimum covers the label was chosen from (all of them, or the label and the first others up to
+the config's ``label_cover_cap``; the index says how many there are and whether that is exact).
 
 Every key set of a sample or view is sorted lexicographically (x, y, z) and unique. Rows are
 ordered by (case size, case mask). Group attributes (`ShardAttributes`) say what the task was.
@@ -34,6 +42,8 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from schemas.version import SCHEMA_VERSION
+
 MASKS = "masks"
 VIEW_STATE_COLUMN = 0
 LABEL_COLUMN = 1
@@ -43,6 +53,10 @@ KEY_SETS = ("points", "observed")
 TASK_SETS = ("visible", "refined")
 """Per-view key sets of the task: ``<name>_keys`` plus ``<name>_offsets`` with n + 1 entries."""
 GT_KEYS = "gt_keys"
+COVER_ROWS = "cover_rows"
+"""Version 2: the task's undominated P_full masks, sorted (the rows of every case's set cover)."""
+COVERS = "covers"
+"""Version 2: each sample's minimum covers (masks), sorted as tuples of views, with offsets."""
 
 KEY_DTYPE = np.dtype(np.int16)
 OFFSET_DTYPE = np.dtype(np.int64)
@@ -57,11 +71,13 @@ def offsets_array(name: str) -> str:
     return f"{name}_offsets"
 
 
-def array_names() -> list[str]:
-    """Every array a shard group holds, sorted."""
+def array_names(schema_version: int = SCHEMA_VERSION) -> list[str]:
+    """Every array a shard group of this layout version holds, sorted."""
     names = [MASKS, GT_KEYS]
     for name in (*KEY_SETS, *TASK_SETS):
         names += [keys_array(name), offsets_array(name)]
+    if schema_version >= 2:
+        names += [COVER_ROWS, COVERS, offsets_array(COVERS)]
     return sorted(names)
 
 

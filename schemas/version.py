@@ -1,3 +1,17 @@
-"""Version of the on-disk dataset layout; bumped on any change a reader must know about."""
+"""Version of the on-disk dataset layout; bumped on any change a reader must know about.
 
-SCHEMA_VERSION = 1
+1: samples, labels and the per-task sets. 2 adds each label's ambiguity: every minimum cover (up to
+the config's cap), their count and support, and the task's cover rows. Readers read both; writers
+add tasks to a dataset in its own version.
+"""
+
+SCHEMA_VERSION = 2
+READABLE_SCHEMA_VERSIONS = (1, 2)
+
+
+def unreadable_version(version: int) -> str | None:
+    """Why this code cannot read layout ``version`` (a dataset of a newer datagen), None when it can."""
+    if version in READABLE_SCHEMA_VERSIONS:
+        return None
+    known = ", ".join(str(v) for v in READABLE_SCHEMA_VERSIONS)
+    return f"schema version {version}; this reader knows {known}: upgrade datagen"

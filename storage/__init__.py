@@ -4,10 +4,11 @@ Depends on numpy, zarr, pyarrow, fsspec and `schemas` only: a training package n
 (``storage.torch`` adds PyTorch, imported only when that module is).
 """
 
+from storage.covers import covers_universe, nearest_cover, undominated, universe_rows
 from storage.dataset_info import init_dataset, read_info
 from storage.export import export_air
 from storage.location import DamagedFile, Location, StorageError, is_s3, open_location, storage_failure
-from storage.reader import Dataset, finalise, load_index, open_dataset
+from storage.reader import Dataset, LabelAmbiguity, finalise, load_index, open_dataset
 from storage.shards import ShardReader
 from storage.validate import SAMPLED_ROWS_PER_SHARD, Validation, validate, validate_dataset
 from storage.writer import (
@@ -28,18 +29,21 @@ __all__ = [
     "SAMPLED_ROWS_PER_SHARD",
     "DamagedFile",
     "Dataset",
+    "LabelAmbiguity",
     "Location",
     "ShardPayload",
     "ShardReader",
     "StorageError",
     "Validation",
     "committed_tasks",
+    "covers_universe",
     "export_air",
     "finalise",
     "holds_dataset",
     "init_dataset",
     "is_s3",
     "load_index",
+    "nearest_cover",
     "open_dataset",
     "open_location",
     "read_commit",
@@ -50,6 +54,8 @@ __all__ = [
     "stored_bytes",
     "sweep_orphans",
     "sweep_temporaries",
+    "undominated",
+    "universe_rows",
     "validate",
     "validate_dataset",
     "write_failure",

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pydantic import ValidationError
 
 from schemas.dataset import DATASET_FILE, DatasetInfo
+from schemas.version import unreadable_version
 from storage.location import Location, StorageError, damaged, first_validation_error
 from storage.writer import COMMITS, FAILURES
 
@@ -16,10 +17,14 @@ def read_info(location: Location) -> DatasetInfo:
             raise damaged(location.url, DATASET_FILE, "missing although the dataset holds commit or failure records")
         raise StorageError(f"{location.url}: no {DATASET_FILE} here; this is not a datagen dataset (check the URL)")
     try:
-        return DatasetInfo.model_validate_json(location.read_bytes(DATASET_FILE))
+        info = DatasetInfo.model_validate_json(location.read_bytes(DATASET_FILE))
     except ValidationError as exc:
         problem = f"unreadable ({first_validation_error(exc)})"
         raise damaged(location.url, DATASET_FILE, problem) from None
+    newer = unreadable_version(info.schema_version)
+    if newer:
+        raise StorageError(f"{location.url}: {DATASET_FILE} says {newer}")
+    return info
 
 
 def holds_records(location: Location) -> bool:

@@ -11,7 +11,7 @@ from collections.abc import Iterator, Sequence
 
 import pyarrow as pa
 
-from schemas.index import INDEX_SCHEMA, CommitRecord
+from schemas.index import INDEX_SCHEMAS, CommitRecord, index_schema_version
 from storage.index import (
     INDEX_COVERAGE_FILE,
     INDEX_FILE,
@@ -21,28 +21,37 @@ from storage.index import (
     unindexed_tasks,
 )
 from storage.location import RERUN_FIX, DamagedFile, Location, is_temporary
-from storage.parquet import read_parquet
+from storage.parquet import read_index_table, read_parquet
 from storage.writer import commit_path, failure_path, read_failure_records
 
 REFINALISE_FIX = "finish the job (`datagen resume JOB`) to finalise the index again"
 
 
-def check_fragments(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[str], list[pa.Table]]:
-    """Problem lines of the committed index fragments, and those with the index's columns."""
+def check_fragments(
+    location: Location, commits: Sequence[CommitRecord], schema_version: int | None
+) -> tuple[list[str], list[pa.Table]]:
+    """Problem lines of the committed index fragments, and those with the columns of the
+    dataset's layout version (None, when dataset.json is unreadable: the first fragment's)."""
     lines: list[str] = []
     tables: list[pa.Table] = []
     for record in commits:
         try:
-            fragment = read_parquet(location, record.index_fragment, schema=None)
+            fragment = read_parquet(location, record.index_fragment)
         except DamagedFile as exc:
             lines.append(f"{record.index_fragment}: cannot read index fragment ({exc.problem}); {RERUN_FIX}")
             continue
-        if fragment.schema.remove_metadata() != INDEX_SCHEMA:
-            lines.append(f"{record.index_fragment}: index columns differ from the schema")
+        found = index_schema_version(fragment.schema)
+        if schema_version is None and found is not None:
+            schema_version = found
+        if found is None or found != schema_version:
+            version = "no known version" if found is None else f"version {found}"
+            lines.append(
+                f"{record.index_fragment}: index columns of {version}, the dataset is version {schema_version}"
+            )
             continue
         if fragment.num_rows != record.num_samples:
             lines.append(f"{record.index_fragment}: {fragment.num_rows} rows for {record.num_samples} samples")
-        tables.append(fragment.cast(INDEX_SCHEMA))
+        tables.append(fragment.cast(INDEX_SCHEMAS[found]))
     return lines, tables
 
 
@@ -65,7 +74,7 @@ def check_finalised_index(location: Location, commits: Sequence[CommitRecord]) -
     if not location.exists(INDEX_FILE):
         return [*lines, f"{INDEX_FILE}: missing although {INDEX_COVERAGE_FILE} lists {len(coverage)} tasks"], None
     try:
-        table = read_parquet(location, INDEX_FILE)
+        table = read_index_table(location, INDEX_FILE)
     except DamagedFile as exc:
         return [*lines, f"{INDEX_FILE}: {exc.problem}; {REFINALISE_FIX}"], None
     covered = [r for r in commits if r.task_id in coverage]  # tasks committed since have no rows yet

@@ -22,7 +22,7 @@ import pyarrow.compute as pc
 
 from schemas.index import INDEX_SCHEMA, CommitRecord
 from storage.location import Location, damaged, first_line
-from storage.parquet import parquet_bytes, read_parquet
+from storage.parquet import parquet_bytes, read_index_table
 from storage.writer import commit_path, committed_tasks
 
 INDEX_FILE = "index.parquet"
@@ -54,7 +54,7 @@ def load_index(location: Location, commits: Sequence[CommitRecord] | None = None
     _refuse(location, INDEX_COVERAGE_FILE, list(coverage_disagreements(coverage, commits)))
     if coverage != {r.task_id: r.attempt_id for r in commits}:
         return merge_fragments(location, commits)  # tasks committed since finalise: not stale data
-    table = read_parquet(location, INDEX_FILE)
+    table = read_index_table(location, INDEX_FILE)
     _refuse(location, INDEX_FILE, list(row_count_disagreements(table, commits)))
     return table
 
@@ -69,7 +69,7 @@ def merge_fragments(location: Location, commits: Sequence[CommitRecord]) -> pa.T
 
 def read_fragment(location: Location, record: CommitRecord) -> pa.Table:
     """One task's index rows; `DamagedFile` when they are unreadable or not ``num_samples`` rows."""
-    table = read_parquet(location, record.index_fragment)
+    table = read_index_table(location, record.index_fragment)
     if table.num_rows != record.num_samples:
         problem = f"{table.num_rows} rows, its commit record {commit_path(record.task_id)} says {record.num_samples}"
         raise damaged(location.url, record.index_fragment, problem, rerun_task=True)

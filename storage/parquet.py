@@ -13,23 +13,34 @@ import io
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.index import INDEX_SCHEMA
+from schemas.index import INDEX_SCHEMAS, index_schema_version
 from storage.location import Location, damaged, first_line
 
 
-def read_parquet(location: Location, relative: str, schema: pa.Schema | None = INDEX_SCHEMA) -> pa.Table:
-    """The table at ``relative`` read on the calling thread; `DamagedFile` when it is missing or bad.
-
-    ``schema=None`` reads the columns as stored (`storage.validate` compares them itself).
-    """
+def read_parquet(location: Location, relative: str) -> pa.Table:
+    """The table at ``relative`` as stored, read on the calling thread; `DamagedFile` when it is
+    missing or bad (`storage.validate` compares the columns itself)."""
     try:
         data = location.read_bytes(relative)
     except FileNotFoundError:
         raise damaged(location.url, relative, "missing") from None
     try:
-        return pq.read_table(io.BytesIO(data), schema=schema, use_threads=False, pre_buffer=False)
+        return pq.read_table(io.BytesIO(data), use_threads=False, pre_buffer=False)
     except (pa.ArrowException, ValueError, TypeError, OSError) as exc:
         raise damaged(location.url, relative, f"unreadable Parquet ({first_line(exc)})") from None
+
+
+def read_index_table(location: Location, relative: str) -> pa.Table:
+    """An index file (merged or a fragment): its columns must be those of a layout version this
+    code reads (`schemas.index.INDEX_SCHEMAS`); `DamagedFile` otherwise."""
+    table = read_parquet(location, relative)
+    version = index_schema_version(table.schema)
+    if version is None:
+        raise damaged(location.url, relative, "index columns match no known schema version")
+    try:
+        return table.cast(INDEX_SCHEMAS[version])
+    except (pa.ArrowException, ValueError) as exc:  # nulls in a column that may hold none
+        raise damaged(location.url, relative, f"unreadable index columns ({first_line(exc)})") from None
 
 
 def parquet_bytes(table: pa.Table) -> bytes:

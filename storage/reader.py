@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections import OrderedDict
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -20,13 +21,14 @@ import pyarrow.compute as pc
 
 from schemas.dataset import DatasetInfo
 from schemas.index import FailureRecord
-from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
+from schemas.shard import COVER_ROWS, COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, offsets_array
+from storage.covers import cover_marginals, universe_rows
 from storage.dataset_info import read_info
 from storage.index import INDEX_COVERAGE_FILE as INDEX_COVERAGE_FILE
 from storage.index import INDEX_FILE as INDEX_FILE
 from storage.index import finalise as finalise
 from storage.index import load_index
-from storage.location import Location, open_location, storage_failure
+from storage.location import Location, StorageError, open_location, storage_failure
 from storage.shards import ShardReader
 from storage.writer import read_failures
 
@@ -67,6 +69,7 @@ class Dataset:
         self._verified: set[str] = set() if verified is None else verified
         """Shards verified by this reader (shared with its selections), so a shard evicted from the
         cache and opened again is not listed again."""
+        self._columns: dict[str, npt.NDArray[Any]] = {}
         self._shard_col = index.column("shard").to_pylist()
         self._row_col = index.column("row").to_numpy()
         self._voxel = info.config.voxel_size
@@ -121,18 +124,61 @@ class Dataset:
         row = shard.array(MASKS)[int(self._row_col[i])]
         return int(row[VIEW_STATE_COLUMN]), int(row[LABEL_COLUMN])
 
+    @property
+    def has_ambiguity(self) -> bool:
+        """Whether the samples carry their minimum covers (schema version 2 and later)."""
+        return "label_support" in self.index.column_names
+
+    def ambiguity(self, i: int) -> LabelAmbiguity:
+        """Sample i's minimum covers, their count and support, and U's set-cover rows."""
+        if not self.has_ambiguity:
+            raise StorageError(
+                f"{self.url}: a version-{self.info.schema_version} dataset keeps no minimum covers; add them with "
+                f"`datagen shards relabel {self.url} --out NEW_URL` (no re-imaging)"
+            )
+        shard = self.shard(self._shard_col[i])
+        row = int(self._row_col[i])
+        offsets = shard.array(offsets_array(COVERS))
+        view_state = self.masks(i)[0]
+        return LabelAmbiguity(
+            covers=shard.array(COVERS)[offsets[row] : offsets[row + 1]],
+            count=int(self._column("min_covers")[i]),
+            exact=bool(self._column("min_covers_exact")[i]),
+            support=int(self._column("label_support")[i]),
+            universe_rows=universe_rows(shard.array(COVER_ROWS), view_state),
+        )
+
+    def _column(self, name: str) -> npt.NDArray[Any]:
+        """An index column as numpy, converted once per reader."""
+        found = self._columns.get(name)
+        if found is None:
+            found = self._columns[name] = self.index.column(name).to_numpy()
+        return found
+
     def __getitem__(self, i: int) -> Sample:
+        """The sample's clouds (float32 metres), view state and label (bool per view); with
+        version-2 labels also ``support`` (bool), ``marginals`` (float32, the fraction of the
+        listed minimum covers holding each view), ``covers`` (bool, one row per listed cover) and
+        ``min_covers`` with ``min_covers_exact``."""
         if not -len(self) <= i < len(self):
             raise IndexError(f"sample {i} out of range for {len(self)} samples")
         i = i % len(self)
         view_state, label = self.masks(i)
-        return {
+        sample: Sample = {
             "sample_id": self.index.column("sample_id")[i].as_py(),
             "points": self.centres(self.keys(i, "points")),
             "observed": self.centres(self.keys(i, "observed")),
             "view_state": mask_to_bools(view_state, self.num_views),
             "label": mask_to_bools(label, self.num_views),
         }
+        if self.has_ambiguity:
+            found = self.ambiguity(i)
+            sample["support"] = mask_to_bools(found.support, self.num_views)
+            sample["marginals"] = cover_marginals(found.covers, self.num_views).astype(np.float32)
+            sample["covers"] = np.stack([mask_to_bools(int(c), self.num_views) for c in found.covers])
+            sample["min_covers"] = found.count
+            sample["min_covers_exact"] = found.exact
+        return sample
 
     # -- selections ---------------------------------------------------------------------------
     def select(self, rows: npt.ArrayLike) -> Dataset:
@@ -206,6 +252,29 @@ class Dataset:
     def iter_shuffled(self, seed: int = 0, epoch: int = 0, shards_mixed: int = 4) -> Iterator[Sample]:
         for i in self.shuffled_order(seed, epoch, shards_mixed):
             yield self[int(i)]
+
+
+@dataclass(frozen=True)
+class LabelAmbiguity:
+    """How many view sets are as good as a sample's label (schema version 2)."""
+
+    covers: npt.NDArray[np.uint64]
+    """The minimum covers listed (masks, sorted as tuples of views; all of them when ``exact``)."""
+    count: int
+    """How many minimum covers exist; a lower bound unless ``exact``."""
+    exact: bool
+    support: int
+    """Mask of the views in at least one minimum cover (always exact)."""
+    universe_rows: npt.NDArray[np.uint64]
+    """U's set-cover rows: a view set covers U exactly when it meets each of them."""
+
+    def marginals(self, num_views: int) -> npt.NDArray[np.float64]:
+        """Per view, the fraction of the listed minimum covers holding it."""
+        return cover_marginals(self.covers, num_views)
+
+    def covers_universe(self, views: int) -> bool:
+        """Whether the view set ``views`` (a mask) covers U."""
+        return bool(((self.universe_rows & np.uint64(views)) != 0).all())
 
 
 def mask_to_bools(mask: int, width: int) -> npt.NDArray[np.bool_]:

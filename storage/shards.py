@@ -39,7 +39,7 @@ def write_shard_group(
     location: Location, relative: str, attributes: ShardAttributes, arrays: dict[str, npt.NDArray[Any]]
 ) -> None:
     """Write every array of a shard group once (the group is new: one attempt, one path)."""
-    missing = sorted(set(array_names()) - set(arrays))
+    missing = sorted(set(array_names(attributes.schema_version)) - set(arrays))
     if missing:
         raise ValueError(f"shard arrays missing: {missing}")
     group = zarr.open_group(zarr_store(location, relative, read_only=False), mode="w")
@@ -139,7 +139,7 @@ class ShardReader:
         One listing of the group plus each array's metadata (which reading needs anyway): what a
         reader pays once per shard, so that a lost file is an error rather than zeroed points.
         """
-        names = array_names()
+        names = array_names(self.attributes.schema_version)
         missing = self.missing_arrays(names)
         if missing:
             raise self._damage(f"arrays missing {missing}; the shard is truncated")

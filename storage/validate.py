@@ -7,6 +7,7 @@ the row.
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -19,6 +20,8 @@ import pyarrow as pa
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import (
+    COVER_ROWS,
+    COVERS,
     GT_KEYS,
     KEY_DTYPE,
     KEY_SETS,
@@ -32,7 +35,7 @@ from schemas.shard import (
     keys_array,
     offsets_array,
 )
-from schemas.version import SCHEMA_VERSION
+from storage.covers import mask_views, undominated, universe_rows
 from storage.dataset_info import read_info
 from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
 from storage.location import DamagedFile, Location, StorageError, open_location
@@ -97,7 +100,7 @@ def validate_dataset(
     found.problems.extend(unreadable)
     if info is not None:
         found.problems.extend(_check_shards(location, info, commits, full, seed, shard_check, progress))
-    found.problems.extend(_check_index(location, commits))
+    found.problems.extend(_check_index(location, commits, None if info is None else info.schema_version))
     failure_problems, stale = check_failures(location, commits)
     found.problems.extend(failure_problems)
     found.warnings.extend(stale + leftover_temporaries(location))
@@ -114,14 +117,12 @@ def _check_shards(
     progress: Callable[[int, int], None] | None,
 ) -> list[str]:
     problems: list[str] = []
-    if info.schema_version != SCHEMA_VERSION:
-        problems.append(f"dataset.json: schema version {info.schema_version}, this reader knows {SCHEMA_VERSION}")
     num_views, alpha = info.num_views, info.config.alpha
 
     def check(numbered: tuple[int, CommitRecord]) -> list[str]:
         number, record = numbered
         rng = np.random.default_rng([seed, number])  # one stream per shard: threads cannot reorder draws
-        return list(_check_shard(location, record, num_views, alpha, full, rng, shard_check))
+        return list(_check_shard(location, record, info.schema_version, num_views, alpha, full, rng, shard_check))
 
     # Shards are checked side by side: a shard costs ~40 small zarr reads whose latency (an event
     # loop round trip locally, a request on an object store) overlaps across threads.
@@ -136,6 +137,7 @@ def _check_shards(
 def _check_shard(
     location: Location,
     record: CommitRecord,
+    schema_version: int,
     num_views: int,
     alpha: int,
     full: bool,
@@ -149,7 +151,7 @@ def _check_shard(
         yield f"{where}: cannot open shard ({exc.problem})"
         return
     try:
-        yield from _check_open_shard(shard, record, num_views, alpha, full, rng, shard_check)
+        yield from _check_open_shard(shard, record, schema_version, num_views, alpha, full, rng, shard_check)
     except DamagedFile as exc:  # unreadable metadata of an array: the shard's last line
         yield f"{where}: {exc.problem}" if exc.relative == where else f"{exc.relative}: {exc.problem}"
 
@@ -157,6 +159,7 @@ def _check_shard(
 def _check_open_shard(
     shard: ShardReader,
     record: CommitRecord,
+    schema_version: int,
     num_views: int,
     alpha: int,
     full: bool,
@@ -167,17 +170,21 @@ def _check_open_shard(
     count = record.num_samples
     if shard.attributes.num_samples != count or shard.attributes.attempt_id != record.attempt_id:
         yield f"{where}: attributes disagree with the commit record (samples or attempt id)"
+    if shard.attributes.schema_version != schema_version:
+        yield f"{where}: schema version {shard.attributes.schema_version}, the dataset is version {schema_version}"
+        return
+    expected = array_names(schema_version)
     names = shard.array_names()
-    missing = sorted(set(array_names()) - set(names))
+    missing = sorted(set(expected) - set(names))
     if missing:
         yield f"{where}: missing arrays {missing}"
         return
-    incomplete = shard.incomplete_arrays(array_names())
+    incomplete = shard.incomplete_arrays(expected)
     if incomplete:
         yield f"{where}: arrays with missing chunks {incomplete}; the shard is truncated"
         return
     try:
-        arrays = {name: shard.array(name) for name in array_names()}
+        arrays = {name: shard.array(name) for name in expected}
     except DamagedFile as exc:
         yield f"{where}: cannot read arrays ({exc.relative}: {exc.problem})"
         return
@@ -197,8 +204,11 @@ def _check_open_shard(
     overlap = (masks[:, VIEW_STATE_COLUMN] & masks[:, LABEL_COLUMN]) != 0
     for row in np.flatnonzero(overlap):
         yield f"{where} row {row}: label shares views with the input case"
-    coverage = list(_check_coverage(where, arrays, count, num_views, alpha, full, rng))
-    yield from coverage
+    rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
+    full_masks = _full_masks(arrays, num_views, alpha)
+    yield from _check_coverage(where, masks, full_masks, rows)
+    if schema_version >= 2:
+        yield from _check_covers(where, arrays, count, full_masks, rows)
     if shard_check is not None:
         shard_check(record, shard)
 
@@ -249,29 +259,24 @@ def _packed(keys: npt.NDArray[np.int16]) -> npt.NDArray[np.int64]:
     return (k[:, 0] << 32) | (k[:, 1] << 16) | k[:, 2]
 
 
-def _check_coverage(
-    where: str,
-    arrays: dict[str, npt.NDArray[Any]],
-    count: int,
-    num_views: int,
-    alpha: int,
-    full: bool,
-    rng: np.random.Generator,
-) -> Iterator[str]:
-    """Recompute P_full and each checked row's U from the stored P_i; the label must cover U."""
+def _full_masks(arrays: dict[str, npt.NDArray[Any]], num_views: int, alpha: int) -> npt.NDArray[np.uint64]:
+    """P_full's masks recomputed from the stored P_i: each key's views, kept when at least alpha."""
     keys, offsets = arrays[keys_array("refined")], arrays[offsets_array("refined")]
     per_view = [_packed(keys[offsets[v] : offsets[v + 1]]) for v in range(num_views)]
     if not per_view or sum(len(p) for p in per_view) == 0:
-        universe_keys, key_masks = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.uint64)
-    else:
-        everything = np.concatenate(per_view)
-        views = np.repeat(np.arange(num_views, dtype=np.uint64), [len(p) for p in per_view])
-        universe_keys, inverse = np.unique(everything, return_inverse=True)
-        key_masks = np.zeros(universe_keys.size, dtype=np.uint64)
-        np.bitwise_or.at(key_masks, inverse, np.uint64(1) << views)
-    full_masks = key_masks[np.bitwise_count(key_masks) >= alpha]
-    rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
-    masks = arrays[MASKS]
+        return np.empty(0, dtype=np.uint64)
+    everything = np.concatenate(per_view)
+    views = np.repeat(np.arange(num_views, dtype=np.uint64), [len(p) for p in per_view])
+    universe_keys, inverse = np.unique(everything, return_inverse=True)
+    key_masks = np.zeros(universe_keys.size, dtype=np.uint64)
+    np.bitwise_or.at(key_masks, inverse, np.uint64(1) << views)
+    return key_masks[np.bitwise_count(key_masks) >= alpha]
+
+
+def _check_coverage(
+    where: str, masks: npt.NDArray[np.uint64], full_masks: npt.NDArray[np.uint64], rows: npt.NDArray[np.int64]
+) -> Iterator[str]:
+    """Each checked row's label must cover its U (the P_full keys its input views miss)."""
     for row in rows:
         case, label = np.uint64(masks[row, VIEW_STATE_COLUMN]), np.uint64(masks[row, LABEL_COLUMN])
         universe = full_masks[(full_masks & case) == 0]
@@ -280,10 +285,63 @@ def _check_coverage(
             yield f"{where} row {row}: label leaves {uncovered} keys of U uncovered"
 
 
-def _check_index(location: Location, commits: list[CommitRecord]) -> Iterator[str]:
+def _check_covers(
+    where: str,
+    arrays: dict[str, npt.NDArray[Any]],
+    count: int,
+    full_masks: npt.NDArray[np.uint64],
+    rows: npt.NDArray[np.int64],
+) -> Iterator[str]:
+    """Version 2: the cover rows are P_full's undominated masks, and each checked row lists
+    distinct covers of U, sorted, all of the label's size, the label among them. (That they are
+    minimum and all of them needs a solver: `datagen shards validate --all`.)"""
+    cover_rows, covers, offsets = arrays[COVER_ROWS], arrays[COVERS], arrays[offsets_array(COVERS)]
+    for name, array in ((COVER_ROWS, cover_rows), (COVERS, covers)):
+        if array.dtype != MASK_DTYPE or array.ndim != 1:
+            yield f"{where}: {name} has shape {array.shape} {array.dtype}, expected (M,) uint64"
+            return
+    if offsets.dtype != OFFSET_DTYPE or offsets.shape != (count + 1,):
+        found = f"{offsets.shape} {offsets.dtype}"
+        yield f"{where}: {offsets_array(COVERS)} has shape {found}, expected ({count + 1},) int64"
+        return
+    if offsets[0] != 0 or (np.diff(offsets) < 0).any() or offsets[-1] != covers.size:
+        yield f"{where}: {offsets_array(COVERS)} not monotone from 0 to {covers.size}; the array is truncated"
+        return
+    if not np.array_equal(cover_rows, undominated(full_masks)):
+        yield f"{where}: {COVER_ROWS} are not the undominated masks of P_full recomputed from the stored P_i"
+        return
+    masks = arrays[MASKS]
+    for row in rows.tolist():
+        case, label = int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN])
+        listed = covers[offsets[row] : offsets[row + 1]]
+        problem = _covers_problem(listed, case, label, universe_rows(cover_rows, case))
+        if problem:
+            yield f"{where} row {row}: {problem}"
+
+
+def _covers_problem(listed: npt.NDArray[np.uint64], case: int, label: int, rows: npt.NDArray[np.uint64]) -> str | None:
+    """What is wrong with one sample's listed minimum covers, or None (also when the label itself
+    does not cover U: `_check_coverage` names that)."""
+    if rows.size and not ((rows & np.uint64(label)) != 0).all():
+        return None
+    if label not in listed.tolist():
+        return f"label {mask_views(label)} is not among its {listed.size} listed minimum covers"
+    if (np.bitwise_count(listed) != label.bit_count()).any():
+        return "listed minimum covers differ in size from the label"
+    if ((listed & np.uint64(case)) != 0).any():
+        return "a listed minimum cover shares views with the input case"
+    if rows.size and not ((listed[:, None] & rows[None, :]) != 0).all():
+        return "a listed minimum cover leaves keys of U uncovered"
+    ordered = [mask_views(int(c)) for c in listed]
+    if any(a >= b for a, b in itertools.pairwise(ordered)):
+        return "listed minimum covers are not sorted and distinct"
+    return None
+
+
+def _check_index(location: Location, commits: list[CommitRecord], schema_version: int | None) -> Iterator[str]:
     """The fragments, the finalised index against the commit records, then each row of the index
     readers would use (the finalised one when it covers the commits, else the merged fragments)."""
-    lines, fragments = check_fragments(location, commits)
+    lines, fragments = check_fragments(location, commits, schema_version)
     yield from lines
     lines, finalised = check_finalised_index(location, commits)
     yield from lines

@@ -25,9 +25,8 @@ import pyarrow as pa
 from pydantic import ValidationError
 
 from schemas.dataset import DATASET_FILE
-from schemas.index import INDEX_SCHEMA, CommitRecord, FailureRecord
+from schemas.index import INDEX_SCHEMAS, CommitRecord, FailureRecord
 from schemas.shard import ShardAttributes
-from schemas.version import SCHEMA_VERSION
 from storage.location import RERUN_FIX, DamagedFile, Location, damaged, first_validation_error, is_temporary
 from storage.parquet import parquet_bytes
 from storage.shards import write_shard_group
@@ -100,7 +99,7 @@ def write_task(location: Location, payload: ShardPayload, attempt_id: str) -> Co
     write_shard_group(location, shard, attributes, payload.arrays)
     location.write_atomic(fragment, _fragment_bytes(payload, shard, attempt_id))
     record = CommitRecord(
-        schema_version=SCHEMA_VERSION,
+        schema_version=attributes.schema_version,
         task_id=task_id,
         attempt_id=attempt_id,
         shard=shard,
@@ -241,7 +240,8 @@ def _fragment_bytes(payload: ShardPayload, shard: str, attempt_id: str) -> bytes
     columns["shard"] = [shard] * count
     columns["row"] = list(range(count))
     columns["attempt_id"] = [attempt_id] * count
-    return parquet_bytes(pa.Table.from_pydict({f.name: columns[f.name] for f in INDEX_SCHEMA}, schema=INDEX_SCHEMA))
+    schema = INDEX_SCHEMAS[payload.attributes.schema_version]
+    return parquet_bytes(pa.Table.from_pydict({f.name: columns[f.name] for f in schema}, schema=schema))
 
 
 def encode_json(data: dict[str, Any]) -> bytes:

@@ -27,7 +27,10 @@ def evaluate(
         typer.Option(
             "--planner",
             "-p",
-            help="oracle, greedy, greedy:K, random, random:K, all or osvp:CHECKPOINT; repeat for several.",
+            help=(
+                "oracle, greedy, greedy:K, random, random:K, random:match=PLANNER (as many views as PLANNER, "
+                "run by run), all, osvp:CHECKPOINT or osvp+DECODING:CHECKPOINT; repeat for several."
+            ),
         ),
     ],
     config: ConfigOption = None,

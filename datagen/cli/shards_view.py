@@ -52,12 +52,32 @@ def format_views(views: Sequence[int]) -> str:
 
 
 def view_strip(details: SampleDetails) -> str:
-    """One character per view, in bit order: I input, L label, B both, . other."""
+    """One character per view, in bit order: I input, L label, B both, a view of another minimum cover
+    (version 2), . other."""
+    support = details.ambiguity.support if details.ambiguity else 0
     marks = []
     for view in range(details.num_views):
         chosen = (view in details.input_views, view in details.label_views)
-        marks.append({(True, False): "I", (False, True): "L", (True, True): "B"}.get(chosen, "."))
+        other = "a" if support >> view & 1 else "."
+        marks.append({(True, False): "I", (False, True): "L", (True, True): "B"}.get(chosen, other))
     return "".join(marks)
+
+
+def ambiguity_rows(details: SampleDetails) -> list[tuple[str, str]]:
+    """``shards show`` lines on the label's minimum covers (none for a version-1 dataset)."""
+    found = details.ambiguity
+    if found is None:
+        return [("minimum covers", "not recorded (schema 1; `datagen shards relabel` adds them)")]
+    count = f"{found.count}" if found.exact else f"at least {found.count}"
+    marginals = found.marginals(details.num_views)
+    shares = "  ".join(f"{v}:{marginals[v]:.2f}" for v in range(details.num_views) if marginals[v] > 0)
+    support_views = [v for v in range(details.num_views) if found.support >> v & 1]
+    listed = "" if found.exact else f" (marginals over the {len(found.covers)} listed)"
+    return [
+        ("minimum covers", f"{count}; the label is one of them"),
+        ("support", f"{format_views(support_views)}  (views of any minimum cover)"),
+        ("marginals", (shares or "none") + listed),
+    ]
 
 
 def _table(*headers: str, title: str | None = None) -> Table:
@@ -129,7 +149,8 @@ def sample_table(details: SampleDetails) -> Table:
         ("shard", f"{meta['shard']} row {meta['row']}"),
         ("input views", f"{format_views(details.input_views)}  ({plural(len(details.input_views), 'view')})"),
         ("label views", f"{format_views(details.label_views)}  ({plural(len(details.label_views), 'view')})"),
-        ("views", f"{view_strip(details)}  (I input, L label)"),
+        ("views", f"{view_strip(details)}  (I input, L label, a another minimum cover)"),
+        *ambiguity_rows(details),
         ("points", f"{details.points} refined P(O_S), {details.observed} observed keys(O_S)"),
         ("sets", f"|P_full| {meta['full_size']}, |U| {meta['universe_size']}"),
         ("solver", f"{meta['solver_status']}, proof {meta['solver_proof']}, objective {meta['solver_objective']}"),
@@ -200,12 +221,33 @@ def print_stats(stats: DatasetStats) -> None:
     spread.add_row("solver time", *(format_seconds(v) for v in stats.solver_seconds_percentiles.values()))
     console.print(spread)
     say("proofs: " + (", ".join(f"{kind} {count}" for kind, count in stats.solver_proofs.items()) or "none"))
+    print_ambiguity(stats)
 
     if stats.failed:
         failed = _table("task", "object", "message", title="failed tasks")
         for task in stats.failed:
             failed.add_row(task.task_id, task.object_name or "-", task.message)
         console.print(failed)
+
+
+def print_ambiguity(stats: DatasetStats) -> None:
+    """How many minimum covers the (non-empty) labels were chosen from."""
+    found = stats.ambiguity
+    if found is None:
+        say("minimum covers: not recorded (schema 1; `datagen shards relabel URL --out URL2` adds them)")
+        return
+    table = _table("|S|", "unique minimum cover", "median minimum covers", title="label ambiguity (non-empty labels)")
+    for name, share in found.unique.items():
+        table.add_row(name, f"{share:.1%}", f"{found.median_covers[name]:.0f}")
+    console.print(table)
+    spread = _table("per label", "p0", "p5", "p50", "p95", "p100")
+    spread.add_row("minimum covers", *("-" if v is None else f"{v:.0f}" for v in found.count_percentiles.values()))
+    spread.add_row(
+        "support views", *("-" if v is None else f"{v:.0f}" for v in found.support_size_percentiles.values())
+    )
+    console.print(spread)
+    if found.capped:
+        say(f"{found.capped} labels have more minimum covers than the cap: their counts are lower bounds")
 
 
 def stats(

@@ -117,10 +117,11 @@ def _remote_execute(
     storage_options: dict[str, Any] | None,
     device: str,
     config_hash: str,
+    schema_version: int,
 ) -> tuple[TaskOutcome, str]:
     import ray
 
-    outcome = execute_task(task, config, out, attempt_id, storage_options, device, config_hash)
+    outcome = execute_task(task, config, out, attempt_id, storage_options, device, config_hash, schema_version)
     context = ray.get_runtime_context()
     return outcome, f"{context.get_node_id()[:12]}@{socket.gethostname()}"
 
@@ -174,7 +175,7 @@ def run_job(
     info = dataset_info(config)
     with _store_errors(job.out):
         _check_same_files(location, config, info.config_hash)
-        init_dataset(location, info)
+        info = init_dataset(location, info)  # an existing dataset keeps its own layout version
         for number, line_error in enumerate(spec.line_errors):
             origin, _, message = line_error.partition(": ")
             write_failure(
@@ -217,7 +218,14 @@ def run_job(
                 for claim in ledger.claim(job_id, owner, LEASE_SECONDS, free):
                     task = tasks_by_id[claim.task.task_id]
                     ref = remote.remote(
-                        task, config, job.out, claim.attempt_id, storage_options, device, info.config_hash
+                        task,
+                        config,
+                        job.out,
+                        claim.attempt_id,
+                        storage_options,
+                        device,
+                        info.config_hash,
+                        info.schema_version,
                     )
                     in_flight[ref] = (claim.task.task_id, claim.attempt_id)
             if in_flight:

@@ -26,7 +26,7 @@ from datagen.engine.shard_payload import task_payload
 from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.setcover import TIE_BREAKS
-from datagen.pipeline.task import Sample, TaskResult, TaskSets, relabel, sample_id
+from datagen.pipeline.task import TaskResult, TaskSets, label_task, labelled_samples
 from schemas.config import GenerationConfig, MissingConfigFile
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
@@ -163,32 +163,11 @@ def relabel_task(
     )
     masks = shard.array(MASKS)
     cases = [int(c) for c in masks[:, VIEW_STATE_COLUMN]]
-    coverage, labels, failures = relabel(sets, cases, config)
-    points = _key_sets(shard, "points", len(cases))
-    observed = _key_sets(shard, "observed", len(cases))
-    samples: list[Sample] = []
-    dropped = 0
-    for row, case in enumerate(cases):
-        cover = labels.get(case)
-        if cover is None:
-            continue
-        empty = cover.status == "empty"
-        if empty and config.empty_labels == "drop":
-            dropped += 1
-            continue
-        samples.append(
-            Sample(
-                sample_id=sample_id(attributes.task_id, case),
-                case=case,
-                label=cover.label,
-                points=points[row],
-                observed=observed[row],
-                full_size=len(coverage),
-                universe_size=cover.rows_before,
-                cover=cover,
-                empty_label=empty,
-            )
-        )
+    labelled = label_task(sets, cases, config)
+    stored = zip(_key_sets(shard, "points", len(cases)), _key_sets(shard, "observed", len(cases)), strict=True)
+    samples, dropped = labelled_samples(
+        attributes.task_id, cases, labelled, dict(zip(cases, stored, strict=True)), config
+    )
     source_meta = attributes.metadata
     metadata: dict[str, object] = {name: source_meta[name] for name in TASK_METADATA if name in source_meta}
     metadata["config_hash"] = config_hash
@@ -205,9 +184,10 @@ def relabel_task(
         sets=sets,
         cases=tuple(cases),
         samples=tuple(samples),
-        failures=tuple(failures),
+        failures=tuple(labelled.failures),
         dropped_empty=dropped,
         metadata=metadata,
+        cover_rows=labelled.cover.minimal,
         seconds={"label": time.perf_counter() - started},
     )
 

@@ -11,12 +11,23 @@ import numpy.typing as npt
 from datagen.pipeline.keys import keys_to_int16, unpack_keys
 from datagen.pipeline.task import TaskResult
 from schemas.config import GenerationConfig
-from schemas.shard import GT_KEYS, MASK_DTYPE, OFFSET_DTYPE, ShardAttributes, keys_array, offsets_array
+from schemas.shard import (
+    COVER_ROWS,
+    COVERS,
+    GT_KEYS,
+    MASK_DTYPE,
+    OFFSET_DTYPE,
+    ShardAttributes,
+    keys_array,
+    offsets_array,
+)
 from schemas.version import SCHEMA_VERSION
 from storage import ShardPayload
 
 
-def task_payload(result: TaskResult, config: GenerationConfig) -> ShardPayload:
+def task_payload(result: TaskResult, config: GenerationConfig, schema_version: int = SCHEMA_VERSION) -> ShardPayload:
+    """The shard and index rows of one task in layout ``schema_version`` (a dataset keeps its own
+    version, so a task added to a version-1 dataset leaves the label ambiguity out)."""
     samples = result.samples
     arrays: dict[str, npt.NDArray[Any]] = {
         "masks": np.array([[s.case, s.label] for s in samples], dtype=MASK_DTYPE).reshape(-1, 2),
@@ -33,7 +44,7 @@ def task_payload(result: TaskResult, config: GenerationConfig) -> ShardPayload:
         arrays[offsets_array(name)] = offsets
     meta = result.metadata
     attributes = ShardAttributes(
-        schema_version=SCHEMA_VERSION,
+        schema_version=schema_version,
         task_id=result.task_id,
         object_id=result.object_id,
         object_name=result.object_name,
@@ -78,9 +89,27 @@ def task_payload(result: TaskResult, config: GenerationConfig) -> ShardPayload:
         "device": [str(meta["device"])] * len(samples),
         "seed": [int(str(meta["seed"]))] * len(samples),
         "config_hash": [str(meta["config_hash"])] * len(samples),
-        "schema_version": [SCHEMA_VERSION] * len(samples),
+        "schema_version": [schema_version] * len(samples),
     }
+    if schema_version >= 2:
+        _add_ambiguity(result, arrays, rows)
     return ShardPayload(attributes=attributes, arrays=arrays, index_rows=rows)
+
+
+def _add_ambiguity(result: TaskResult, arrays: dict[str, npt.NDArray[Any]], rows: dict[str, list[Any]]) -> None:
+    """Version 2: the task's cover rows, each sample's minimum covers, their count and support."""
+    found = [s.cover.ambiguity for s in result.samples]
+    ambiguities = [a for a in found if a is not None]
+    if len(ambiguities) != len(found):
+        raise ValueError(f"task {result.task_id}: labels without their minimum covers cannot make a version-2 shard")
+    arrays[COVER_ROWS] = np.asarray(result.cover_rows, dtype=MASK_DTYPE)
+    offsets = np.zeros(len(ambiguities) + 1, dtype=OFFSET_DTYPE)
+    offsets[1:] = np.cumsum([len(a.covers) for a in ambiguities])
+    arrays[COVERS] = np.array([c for a in ambiguities for c in a.covers], dtype=MASK_DTYPE)
+    arrays[offsets_array(COVERS)] = offsets
+    rows["label_support"] = [a.support for a in ambiguities]
+    rows["min_covers"] = [a.count for a in ambiguities]
+    rows["min_covers_exact"] = [a.exact for a in ambiguities]
 
 
 def _flatten(sets: Sequence[npt.NDArray[np.int64]]) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.int64]]:

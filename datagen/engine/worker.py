@@ -50,12 +50,14 @@ def execute_task(
     storage_options: dict[str, Any] | None = None,
     device: str = "cpu",
     config_hash: str | None = None,
+    schema_version: int = SCHEMA_VERSION,
 ) -> TaskOutcome:
     """Run one task end to end and commit its shard under a unique execution id.
 
     ``device`` is where a learned refiner runs ('cuda' when the engine reserved a GPU share).
     ``config_hash`` is the dataset's: a worker whose files give another hash (other shipped weights
-    on this node) fails the task rather than mix two refiners in one dataset.
+    on this node) fails the task rather than mix two refiners in one dataset. ``schema_version`` is
+    the dataset's layout, which its shards keep (a resumed version-1 dataset stays version 1).
     """
     started = time.perf_counter()
     frozen = config.model_dump_json()
@@ -88,7 +90,7 @@ def execute_task(
             ),
         )
         return TaskOutcome(spec.task_id, False, 0, execution, message=str(exc), seconds=time.perf_counter() - started)
-    record = write_task(location, task_payload(result, generation), execution)
+    record = write_task(location, task_payload(result, generation, schema_version), execution)
     return TaskOutcome(spec.task_id, True, record.num_samples, record.attempt_id, seconds=time.perf_counter() - started)
 
 

@@ -9,7 +9,9 @@ exceed it is not made).
 Figures (reference/authors-pipeline.md section 8): coverage = distinct observed keys / keys visible from
 all candidate views (the authors' reference count); ``coverage_gt`` = the same over every key of P_gt;
 required views counts the initial view; coverage per view and per metre are the paper's efficiency
-columns (percent per view, percent per metre).
+columns (percent per view, percent per metre). A planner with a matched random in the run
+(``random:match=SPEC``) also carries that random's coverage in the same situation: its lift over chance at
+equal views.
 """
 
 from __future__ import annotations
@@ -76,6 +78,8 @@ class Episode:
     input_seconds: float
     """Refining the input view (`Situation.input_seconds`); 0 for planners that read no input."""
     chamfer_mm: float
+    matched_random_coverage: float | None = None
+    """Coverage (fraction) of the run's matched random planner in the same situation, when it has one."""
 
     @property
     def coverage(self) -> float:
@@ -84,6 +88,13 @@ class Episode:
     @property
     def coverage_gt(self) -> float:
         return self.observed_size / self.ground_truth_size if self.ground_truth_size else 0.0
+
+    @property
+    def lift(self) -> float:
+        """Coverage points above the matched random's in the same situation (NaN without one)."""
+        if self.matched_random_coverage is None:
+            return float("nan")
+        return 100.0 * (self.coverage - self.matched_random_coverage)
 
     @property
     def views(self) -> int:
@@ -114,6 +125,8 @@ class Episode:
         data.update(coverage_curve=[round(c, 6) for c in self.coverage_curve])
         data.update(reference_size=self.reference_size, ground_truth_size=self.ground_truth_size)
         data.update(observed_size=self.observed_size)
+        matched = self.matched_random_coverage
+        data.update(matched_random_coverage=None if matched is None else round(100.0 * matched, 6))
         data.update({k: (None if v != v else round(v, 6)) for k, v in self.figures().items()})
         return data
 
@@ -122,6 +135,7 @@ class Episode:
         return {
             "coverage": 100.0 * self.coverage,
             "coverage_gt": 100.0 * self.coverage_gt,
+            "lift": self.lift,
             "views": float(self.views),
             "movement": self.movement,
             "coverage_per_view": self.coverage_per_view,

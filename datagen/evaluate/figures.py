@@ -1,5 +1,6 @@
-"""Pictures of `datagen evaluate` runs: coverage against a movement budget (the paper's Fig. 6) and, for
-one scene, each planner's route around the object and what it observed.
+"""Pictures of `datagen evaluate` runs: coverage against a movement budget (the paper's Fig. 6; a planner
+with a matched random shows its lift in the legend) and, for one scene, each planner's route around the
+object and what it observed.
 
 Built on matplotlib's Agg canvas directly (never pyplot), like `datagen.inspection.plots`: headless,
 no global state between calls, safe in threads. No RNG: clouds are thinned by a fixed stride.
@@ -21,6 +22,7 @@ from mpl_toolkits.mplot3d import Axes3D
 
 from datagen.errors import InvalidArgument
 from datagen.evaluate.episode import Episode
+from datagen.evaluate.report import summarise
 from datagen.evaluate.scene import Scene
 
 DPI = 100
@@ -45,6 +47,15 @@ CURVE_CMAP = "tab10"
 def row_label(episode: Episode) -> str:
     """The table's row name: the planner, with its refiner when one was used."""
     return episode.planner if episode.refiner == "-" else f"{episode.planner} ({episode.refiner})"
+
+
+def legend_label(episodes: Sequence[Episode]) -> str:
+    """A curve's legend entry: its row label, with the mean lift over its matched random when it has one (the
+    table's figure: per-object means, then their mean), so the gain over chance at equal views is read
+    without the table."""
+    label = row_label(episodes[0])
+    lift = summarise(episodes)[0].mean["lift"]
+    return label if math.isnan(lift) else f"{label} ({lift:+.1f} vs random at equal views)"
 
 
 def coverage_at_budgets(episode: Episode, budgets: npt.ArrayLike) -> npt.NDArray[np.float64]:
@@ -77,10 +88,10 @@ def draw_budget_curves(episodes: Sequence[Episode], path: Path) -> None:
     FigureCanvasAgg(figure)
     axes = figure.add_subplot(1, 1, 1)
     cmap = colormaps[CURVE_CMAP]
-    for index, label in enumerate(sorted(rows)):
-        mean = np.mean([coverage_at_budgets(e, budgets) for e in rows[label]], axis=0)
+    for index, (_, runs) in enumerate(sorted(rows.items())):
+        mean = np.mean([coverage_at_budgets(e, budgets) for e in runs], axis=0)
         colour = cmap(index % cmap.N)
-        axes.plot(budgets, 100.0 * mean, color=colour, linewidth=1.6, drawstyle="steps-post", label=label)
+        axes.plot(budgets, 100.0 * mean, color=colour, linewidth=1.6, drawstyle="steps-post", label=legend_label(runs))
     axes.set_xlabel("movement budget (m)")
     axes.set_ylabel("surface coverage (%)")
     axes.set_xlim(budgets[0], budgets[-1])

@@ -3,25 +3,30 @@
 A planner answers a `Situation` with a `Plan`: either a one-shot set (visited along the shortest open
 path) or an ordered sequence (an iterative chooser that already decided the order). Trained networks
 plug in as a `ViewScorer` (refined cloud + view state in, one probability per view out) wrapped by
-`ScoredPlanner`, which keeps the views above 0.5 as the paper does. Baselines:
+`ScoredPlanner`, which keeps the views above 0.5 as the paper does, or lets a `DecodingScorer` turn the
+probabilities into views its own way (a named decoding). Baselines:
 
 - ``oracle``: the generator's exact label for this very case, what a perfect network trained on the
   dataset would predict;
 - ``greedy`` / ``greedy:K``: next-best view by true new surface, one view at a time, until no view
   adds surface (or K views in all, the initial one included): the search-based NBV bound;
 - ``random`` / ``random:K``: seeded uniform views, as many as the oracle's (or K in all);
+- ``random:match=SPEC``: seeded uniform views, as many as planner SPEC of the same run chose in the same
+  situation, so a trained planner is judged against chance at equal views (`match_planners`);
 - ``all``: every candidate view.
 
 ``osvp:FILE`` loads a checkpoint of the `osvp` training package through its ``osvp.planning`` module
-(``load_scorer(path) -> ViewScorer``), imported only when asked for.
+(``load_scorer(path) -> ViewScorer``), imported only when asked for; ``osvp+DECODE:FILE`` plans with the
+scorer's decoding DECODE instead of its default.
 """
 
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -33,7 +38,11 @@ from datagen.pipeline.setcover import mask_to_views
 CHOICE_THRESHOLD = 0.5
 """A view is chosen when its probability exceeds this (the paper's rule)."""
 
-PLANNER_HELP = "oracle, greedy, greedy:K, random, random:K, all or osvp:CHECKPOINT"
+PLANNER_HELP = (
+    "oracle, greedy, greedy:K, random, random:K, random:match=PLANNER, all, osvp:CHECKPOINT or osvp+DECODING:CHECKPOINT"
+)
+MATCH_PREFIX = "match="
+"""``random:match=SPEC``: the argument that names the planner whose view count a random planner takes."""
 
 
 @dataclass(frozen=True)
@@ -64,6 +73,23 @@ class ViewScorer(Protocol):
     def view_probabilities(
         self, points: npt.NDArray[np.float32], view_state: npt.NDArray[np.float32]
     ) -> npt.NDArray[np.float64]: ...
+
+
+@runtime_checkable
+class DecodingScorer(ViewScorer, Protocol):
+    """A scorer that decides itself which views its probabilities stand for (``osvp+DECODE:FILE``).
+
+    ``decoding`` is None for the scorer's default, else the text after ``osvp+``; an unknown one raises
+    ``ValueError``. A scorer may also list the names it accepts as ``decodings`` (a tuple of str), so a
+    bad name stops before any imaging; a parametrised decoding (``threshold=0.3``) is checked by the
+    part before ``=``.
+    """
+
+    def select_views(
+        self, probabilities: npt.NDArray[np.float64], view_state: npt.NDArray[np.float32], decoding: str | None
+    ) -> npt.NDArray[np.bool_]:
+        """One bool per view, True = take it (the views already taken are dropped afterwards)."""
+        ...
 
 
 class OraclePlanner:
@@ -120,35 +146,110 @@ class RandomPlanner:
         self.uses_refinement = total_views is None
 
     def plan(self, situation: Situation) -> Plan:
-        others = [v for v in range(situation.scene.num_views) if v != situation.initial_view]
         wanted = self.total_views - 1 if self.total_views is not None else situation.oracle_label().label.bit_count()
-        count = min(wanted, len(others))
-        chosen = situation.rng().choice(len(others), size=count, replace=False)
-        return Plan(views=tuple(sorted(others[i] for i in chosen)))
+        return Plan(views=random_views(situation, wanted))
+
+
+@dataclass
+class MatchedRandomPlanner:
+    """``random:match=SPEC``: uniform views, exactly as many as planner SPEC chose in the same situation.
+
+    The run evaluates SPEC first and hands its plan's view count over with `taking` (a planner is asked
+    one situation at a time and sees no other planner's answer). What is matched is the number of
+    distinct views SPEC's plan chose, the initial view excluded, before any budget: both runs then meet
+    the same --budget-views/--budget-moves cut afterwards, like every planner, so a budget never decides
+    how many views chance gets. The views come from the situation's own stream (as `RandomPlanner`'s),
+    so they depend neither on worker count nor on planner order; the planner reads the refined input iff
+    SPEC does, so both run under the same refiner label.
+    """
+
+    name: str
+    wanted: str
+    """SPEC as the user gave it: another planner's spec, or a prefix of exactly one."""
+    matched: str | None = None
+    """The full spec of the planner it matches, once `match_planners` has bound it."""
+    uses_refinement: bool = True
+    count: int | None = None
+    """The matched planner's view count in the situation at hand (`taking`)."""
+
+    def matching(self, matched: Planner) -> MatchedRandomPlanner:
+        """This planner bound to the planner it matches."""
+        return replace(self, matched=matched.name, uses_refinement=matched.uses_refinement)
+
+    def taking(self, count: int) -> MatchedRandomPlanner:
+        """This planner for one situation where the matched planner chose ``count`` views."""
+        return replace(self, count=count)
+
+    def plan(self, situation: Situation) -> Plan:
+        if self.count is None:
+            raise ValueError(f"planner {self.name} plans only with the matched planner's view count (`taking`)")
+        return Plan(views=random_views(situation, self.count))
+
+
+def random_views(situation: Situation, count: int) -> tuple[int, ...]:
+    """``count`` uniform views other than the initial one (all of them if fewer), from the situation's stream."""
+    others = [v for v in range(situation.scene.num_views) if v != situation.initial_view]
+    chosen = situation.rng().choice(len(others), size=min(count, len(others)), replace=False)
+    return tuple(sorted(others[i] for i in chosen))
+
+
+def chosen_count(views: Sequence[int], initial_view: int) -> int:
+    """How many views a plan chose: distinct views, the initial one excluded (what a matched random takes)."""
+    return len(set(views) - {initial_view})
 
 
 class ScoredPlanner:
-    """A trained network as a planner: the views whose probability exceeds 0.5, initial view excluded."""
+    """A trained network as a planner: the views whose probability exceeds 0.5, or those its scorer's
+    decoding selects (a `DecodingScorer`), the views already taken excluded."""
 
     uses_refinement = True
 
-    def __init__(self, name: str, scorer: ViewScorer) -> None:
+    def __init__(self, name: str, scorer: ViewScorer, decoding: str | None = None) -> None:
+        _check_decoding(name, scorer, decoding)
         self.name = name
         self.scorer = scorer
+        self.decoding = decoding
+        """None: the scorer's default (the paper's 0.5 rule for a scorer without decodings)."""
 
     def plan(self, situation: Situation) -> Plan:
         request = situation.request()
         cloud = request.observed if getattr(self.scorer, "source", "points") == "observed" else request.points
         probabilities = np.asarray(self.scorer.view_probabilities(cloud, request.view_state), dtype=np.float64)
-        if probabilities.shape != (request.num_views,):
+        self._check_length("probabilities", probabilities, request.num_views)
+        take = self._select(probabilities, request.view_state)
+        chosen = np.flatnonzero(take & (np.asarray(request.view_state) == 0))
+        return Plan(views=tuple(int(v) for v in chosen), probabilities=probabilities)
+
+    def _select(
+        self, probabilities: npt.NDArray[np.float64], view_state: npt.NDArray[np.float32]
+    ) -> npt.NDArray[np.bool_]:
+        if not isinstance(self.scorer, DecodingScorer):
+            return probabilities > CHOICE_THRESHOLD
+        try:
+            take = np.asarray(self.scorer.select_views(probabilities, view_state, self.decoding), dtype=bool)
+        except ValueError as exc:
+            raise PlannerError(f"planner {self.name}: {exc}") from None
+        self._check_length("view choices", take, probabilities.size)
+        return take
+
+    def _check_length(self, what: str, values: npt.NDArray[np.generic], num_views: int) -> None:
+        if values.shape != (num_views,):
             raise PlannerError(
-                f"planner {self.name} returned {probabilities.shape} probabilities for {request.num_views} views; "
+                f"planner {self.name} returned {values.shape} {what} for {num_views} views; "
                 "its checkpoint was trained for another view space"
             )
-        chosen = tuple(
-            int(v) for v in np.flatnonzero(probabilities > CHOICE_THRESHOLD) if int(v) != situation.initial_view
-        )
-        return Plan(views=chosen, probabilities=probabilities)
+
+
+def _check_decoding(name: str, scorer: ViewScorer, decoding: str | None) -> None:
+    """Refuse a decoding the scorer cannot apply before any imaging (``threshold=0.3`` is checked as
+    ``threshold``); a scorer that lists no ``decodings`` is asked when it plans."""
+    if decoding is None:
+        return
+    if not isinstance(scorer, DecodingScorer):
+        raise PlannerError(f"planner {name!r}: this scorer has no decodings; drop '+{decoding}' for its 0.5 rule")
+    accepted = getattr(scorer, "decodings", None)
+    if accepted is not None and decoding.partition("=")[0] not in accepted:
+        raise PlannerError(f"planner {name!r}: unknown decoding {decoding!r}; choose {', '.join(accepted)}")
 
 
 def load_osvp_scorer(path: Path) -> ViewScorer:
@@ -168,20 +269,54 @@ def load_osvp_scorer(path: Path) -> ViewScorer:
 
 
 def make_planner(spec: str) -> Planner:
-    """The planner a command-line name stands for; `PlannerError` names the choices otherwise."""
+    """The planner a command-line name stands for; `PlannerError` names the choices otherwise.
+
+    A ``random:match=SPEC`` comes back unbound: `match_planners` binds it to a planner of the same run.
+    """
     name, colon, argument = spec.partition(":")
     if colon and not argument:
         raise PlannerError(f"planner {spec!r} names nothing after ':'; choose {PLANNER_HELP}")
-    if name == "osvp" and argument:
-        return ScoredPlanner(spec, load_osvp_scorer(Path(argument)))
+    base, plus, decoding = name.partition("+")
+    if base == "osvp" and argument:
+        if plus and not decoding:
+            raise PlannerError(f"planner {spec!r} names no decoding after '+'; give osvp+DECODING:CHECKPOINT")
+        return ScoredPlanner(spec, load_osvp_scorer(Path(argument)), decoding=decoding or None)
     if name == "oracle" and not argument:
         return OraclePlanner()
     if name == "all" and not argument:
         return AllPlanner()
+    if name == "random" and argument.startswith(MATCH_PREFIX):
+        if argument == MATCH_PREFIX:
+            raise PlannerError(f"planner {spec!r} names no planner after '='; give random:match=PLANNER")
+        return MatchedRandomPlanner(spec, argument.removeprefix(MATCH_PREFIX))
     if name in ("greedy", "random"):
         total = _view_count(spec, argument) if argument else None
         return GreedyPlanner(total) if name == "greedy" else RandomPlanner(total)
     raise PlannerError(f"unknown planner {spec!r}; choose {PLANNER_HELP}")
+
+
+def match_planners(planners: Sequence[Planner]) -> list[Planner]:
+    """The planners, in their order, with every ``random:match=SPEC`` bound to the planner SPEC names."""
+    return [p.matching(_matched(p, planners)) if isinstance(p, MatchedRandomPlanner) else p for p in planners]
+
+
+def _matched(planner: MatchedRandomPlanner, planners: Sequence[Planner]) -> Planner:
+    """The one planner SPEC names, exactly or as the prefix of a single spec; otherwise one error line naming
+    the choices (a matched random matches neither itself nor another matched random: their counts are
+    borrowed, not chosen)."""
+    choices = {p.name: p for p in planners if not isinstance(p, MatchedRandomPlanner)}
+    names = sorted(choices)
+    listed = ", ".join(names) if names else "none: add the planner to match"
+    found = [n for n in names if n == planner.wanted] or [n for n in names if n.startswith(planner.wanted)]
+    if len(found) == 1:
+        return choices[found[0]]
+    if found:
+        problem = f"{planner.wanted!r} is the start of {len(found)} planners; give one in full"
+    elif any(isinstance(p, MatchedRandomPlanner) and p.name.startswith(planner.wanted) for p in planners):
+        problem = "a matched random cannot match itself or another random:match planner"
+    else:
+        problem = f"{planner.wanted!r} names no other planner of this run"
+    raise PlannerError(f"planner {planner.name!r}: {problem}; choose one of {listed}")
 
 
 def _view_count(spec: str, text: str) -> int:

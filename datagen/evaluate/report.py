@@ -2,7 +2,8 @@
 
 Each object's figures are first averaged over its runs (rotations x initial views), then the table gives
 the mean and the population standard deviation of those per-object means. Rows keep the order in which
-refiners and planners were asked for.
+refiners and planners were asked for. The lift (coverage points above the matched random at equal views)
+is averaged the same way over the runs that have one; a table shows its column only when some row has it.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from datagen.evaluate.episode import Episode
 
 FIGURES: tuple[tuple[str, str, int], ...] = (
     ("coverage", "coverage %", 2),
+    ("lift", "lift %", 2),
     ("coverage_gt", "of P_gt %", 2),
     ("views", "views", 2),
     ("movement", "movement m", 2),
@@ -28,6 +30,8 @@ FIGURES: tuple[tuple[str, str, int], ...] = (
     ("input_seconds", "input s", 2),
 )
 """(key of `Episode.figures`, column heading, decimals)."""
+OPTIONAL_FIGURES = frozenset({"lift"})
+"""Columns left out of a table where no row has a value (no planner of the run has a matched random)."""
 
 K = TypeVar("K", bound=Hashable)
 
@@ -103,15 +107,21 @@ def per_object_rows(episodes: Sequence[Episode]) -> list[Row]:
 def markdown_table(rows: Sequence[Row]) -> str:
     """A Markdown table (pastes into a README; reads fine in a terminal)."""
     named = any(row.object_name for row in rows)
-    head = [*(["object"] if named else []), "refiner", "planner", *(h for _, h, _ in FIGURES), "objects", "runs"]
+    figures = _shown_figures(rows)
+    head = [*(["object"] if named else []), "refiner", "planner", *(h for _, h, _ in figures), "objects", "runs"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for row in rows:
         cells = [*([row.object_name] if named else []), row.refiner, row.planner]
-        cells += [_mean_std(row.mean[k], row.std[k], d) for k, _, d in FIGURES]
+        cells += [_mean_std(row.mean[k], row.std[k], d) for k, _, d in figures]
         runs = f"{row.runs}" + (f" ({row.approximate_paths} heuristic paths)" if row.approximate_paths else "")
         cells += [str(row.objects), runs]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def _shown_figures(rows: Sequence[Row]) -> list[tuple[str, str, int]]:
+    """The table's columns: every figure, less the optional ones no row has a value for."""
+    return [f for f in FIGURES if f[0] not in OPTIONAL_FIGURES or any(not math.isnan(r.mean[f[0]]) for r in rows)]
 
 
 def _groups(episodes: Sequence[Episode], key: Callable[[Episode], K]) -> dict[K, list[Episode]]:

@@ -2,7 +2,9 @@
 
 Each object is imaged once per rotation and refined once per refiner; every planner then answers the
 same situations. Planners that read neither the refined input nor the generator's label (greedy, all,
-random:K) run once per situation, under the refiner label "-". Objects run side by side in worker
+random:K) run once per situation, under the refiner label "-". A ``random:match=SPEC`` runs after the
+planner it matches (whatever the order given), takes as many views as that planner chose there, and
+gives the planner's run its lift; output keeps the order given. Objects run side by side in worker
 processes (``workers``); the result does not depend on how many (every random draw has its own stream
 and torch is held to one thread per worker). An object that cannot be prepared, or a case the solver
 cannot label, becomes a failure line and the rest goes on.
@@ -13,12 +15,12 @@ from __future__ import annotations
 import multiprocessing
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from datagen.errors import ConfigError, DatagenError, InvalidArgument
 from datagen.evaluate.episode import Budget, Episode, run_episode
-from datagen.evaluate.planners import Planner, make_planner
+from datagen.evaluate.planners import MatchedRandomPlanner, Planner, chosen_count, make_planner, match_planners
 from datagen.evaluate.scene import Scene, build_scene
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.objects.objects_file import read_objects_file
@@ -100,10 +102,10 @@ def refiner_config(config: GenerationConfig, refiner: str) -> GenerationConfig:
 
 
 def check_planners(names: Sequence[str]) -> list[Planner]:
-    """Build every planner once up front, so a bad name or checkpoint stops before any imaging."""
+    """Build every planner once up front, so a bad name, checkpoint or match stops before any imaging."""
     if not names:
         raise InvalidArgument("name at least one --planner")
-    return [make_planner(name) for name in names]
+    return match_planners([make_planner(name) for name in names])
 
 
 def evaluate(
@@ -187,15 +189,52 @@ def _evaluate_situation(
 ) -> list[Episode]:
     episodes = []
     for position, refined_scene in enumerate(refined):
-        situation = Situation(refined_scene, initial)
-        for planner in planners:
-            if not planner.uses_refinement and position > 0:
-                continue
-            try:
-                episodes.append(run_episode(planner, situation, budget))
-            except LabelError as exc:
-                outcome.failures.append(
-                    f"{scene.object_name} rotation {scene.rotation} view {initial} ({refined_scene.refiner.name}, "
-                    f"{planner.name}): {exc}"
-                )
+        active = [p for p in planners if p.uses_refinement or position == 0]
+        episodes += run_situation(Situation(refined_scene, initial), active, budget, outcome.failures)
     return episodes
+
+
+def run_situation(
+    situation: Situation, planners: Sequence[Planner], budget: Budget, failures: list[str]
+) -> list[Episode]:
+    """Every planner's run on one situation, in the order given; a failed plan adds a line to ``failures``.
+
+    Matched randoms run last (they may match only planners that are not matched randoms), each with the
+    view count of its planner's plan here, and are skipped where that plan failed; the matched planner's
+    run then carries the random's coverage (its lift)."""
+    runs: dict[int, Episode] = {}
+    for index in sorted(range(len(planners)), key=lambda i: isinstance(planners[i], MatchedRandomPlanner)):
+        planner = _situated(planners[index], planners, runs)
+        episode = None if planner is None else _attempt(planner, situation, budget, failures)
+        if episode is not None:
+            runs[index] = episode
+    return [_with_lift(runs[i], planners, runs) for i in sorted(runs)]
+
+
+def _situated(planner: Planner, planners: Sequence[Planner], runs: dict[int, Episode]) -> Planner | None:
+    """The planner to run here: a matched random gets its planner's view count (None: that plan failed)."""
+    if not isinstance(planner, MatchedRandomPlanner):
+        return planner
+    matched = next((e for i, e in runs.items() if planners[i].name == planner.matched), None)
+    return None if matched is None else planner.taking(chosen_count(matched.planned, matched.initial_view))
+
+
+def _with_lift(episode: Episode, planners: Sequence[Planner], runs: dict[int, Episode]) -> Episode:
+    """The run with the coverage of the first matched random that matches its planner, if any."""
+    for index, other in runs.items():
+        planner = planners[index]
+        if isinstance(planner, MatchedRandomPlanner) and planner.matched == episode.planner:
+            return replace(episode, matched_random_coverage=other.coverage)
+    return episode
+
+
+def _attempt(planner: Planner, situation: Situation, budget: Budget, failures: list[str]) -> Episode | None:
+    try:
+        return run_episode(planner, situation, budget)
+    except LabelError as exc:
+        scene = situation.scene
+        failures.append(
+            f"{scene.object_name} rotation {scene.rotation} view {situation.initial_view} "
+            f"({situation.refined.refiner.name}, {planner.name}): {exc}"
+        )
+        return None

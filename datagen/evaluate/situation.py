@@ -22,7 +22,7 @@ from datagen.pipeline.keys import key_centres, unpack_keys
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import Refiner
 from datagen.pipeline.setcover import CoverResult, LabelError, TaskCover
-from datagen.pipeline.task import RefinedViews, case_inputs, refine_views
+from datagen.pipeline.task import RefinedViews, case_inputs, refine_views, task_cover
 from schemas.config import GenerationConfig
 
 
@@ -63,8 +63,7 @@ class RefinedScene:
 
     @cached_property
     def cover(self) -> TaskCover:
-        config = self.config
-        return TaskCover(self.coverage.masks, config.num_views, config.solver_time_limit, config.label_tie_break)
+        return task_cover(self.coverage.masks, self.config, list_covers=False)
 
     def relabelled(self, config: GenerationConfig) -> RefinedScene:
         """The same refined views labelled under another config (another alpha): no new refinement."""

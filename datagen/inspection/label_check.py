@@ -36,7 +36,7 @@ import numpy.typing as npt
 from datagen.pipeline import setcover
 from schemas.config import MAX_VIEWS
 from schemas.index import CommitRecord
-from schemas.shard import LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
+from schemas.shard import COVERS, LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from storage import (
     SAMPLED_ROWS_PER_SHARD,
     DamagedFile,
@@ -46,6 +46,7 @@ from storage import (
     open_location,
     read_commits,
     read_info,
+    undominated,
 )
 
 MaskArray = npt.NDArray[np.uint64]
@@ -69,6 +70,10 @@ NOT_MINIMUM = "not-minimum"
 NOT_LEXICOGRAPHIC = "not-lexicographic"
 INDEX_MISMATCH = "index-mismatch"
 UNSOLVED = "unsolved"
+COVERS_WRONG = "covers"
+"""A version-2 sample's minimum covers, their count or support differ from an enumeration of our own."""
+
+AMBIGUITY_COLUMNS = ("label_support", "min_covers", "min_covers_exact")
 
 Progress = Callable[[int, int], None]
 """Called with (shards done, shards in all) after each shard."""
@@ -91,6 +96,16 @@ class LabelReport:
     checked: int = 0
     """Labels checked with the solver."""
     shards: int = 0
+
+
+@dataclass(frozen=True)
+class Ambiguity:
+    """A sample's stored minimum covers with the index's support and count."""
+
+    listed: tuple[int, ...]
+    support: int
+    count: int
+    exact: bool
 
 
 @dataclass(frozen=True)
@@ -185,15 +200,33 @@ class ShardLabelCheck:
         return self.report
 
 
-def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tuple[str, int], tuple[str, int]]:
-    """(shard, row) -> (sample id, label) as the index holds them; empty when the index cannot be
-    read (`storage.validate` says why)."""
+@dataclass(frozen=True)
+class IndexRow:
+    """What the index says of one sample."""
+
+    sample_id: str
+    label: int
+    ambiguity: tuple[int, int, bool] | None
+    """(support, count of minimum covers, whether the count is exact) in a version-2 index."""
+
+
+def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tuple[str, int], IndexRow]:
+    """(shard, row) -> what the index holds; empty when the index cannot be read (`storage.validate`
+    says why)."""
     try:
-        index = load_index(location, records).select(["shard", "row", "sample_id", "label"])
+        index = load_index(location, records)
     except Exception:
         return {}
     shards, rows, names, labels = (index.column(c).to_pylist() for c in ("shard", "row", "sample_id", "label"))
-    return {(s, r): (n, int(label)) for s, r, n, label in zip(shards, rows, names, labels, strict=True)}
+    if "label_support" in index.column_names:
+        found = zip(*(index.column(c).to_pylist() for c in AMBIGUITY_COLUMNS), strict=True)
+        ambiguity: list[tuple[int, int, bool] | None] = [(int(a), int(b), bool(c)) for a, b, c in found]
+    else:
+        ambiguity = [None] * len(names)
+    return {
+        (s, r): IndexRow(n, int(label), a)
+        for s, r, n, label, a in zip(shards, rows, names, labels, ambiguity, strict=True)
+    }
 
 
 def _why(error: Exception) -> str:
@@ -217,7 +250,7 @@ def _check_reader(
     num_views: int,
     full: bool,
     rng: np.random.Generator,
-    index_rows: dict[tuple[str, int], tuple[str, int]],
+    index_rows: dict[tuple[str, int], IndexRow],
     search_limit: int,
     tie_break: setcover.TieBreak = "index",
 ) -> tuple[list[LabelProblem], int]:
@@ -232,18 +265,36 @@ def _check_reader(
     if masks.dtype != MASK_DTYPE or masks.ndim != 2 or masks.shape[1] != 2:
         return [LabelProblem(where, None, UNREADABLE, f"{where}: cannot check labels (masks {masks.shape})")], 0
     cover = TaskRows.from_masks(full_masks(refined, offsets, alpha), search_limit, tie_break, num_views)
+    listed = _listed_covers(shard, masks.shape[0])
     count = masks.shape[0]
     rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
     problems: list[LabelProblem] = []
     for row in rows.tolist():
         case, label = int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN])
         indexed = index_rows.get((where, row))
-        name = indexed[0] if indexed else _sample_id(shard.attributes.task_id, case)
-        problems.extend(LabelProblem(where, row, kind, f"{name}: {text}") for kind, text in cover.judge(case, label))
-        if indexed is not None and indexed[1] != label:
-            text = f"the index says label {views_text(indexed[1])}, the shard holds {views_text(label)}"
+        name = indexed.sample_id if indexed else _sample_id(shard.attributes.task_id, case)
+        judged = list(cover.judge(case, label))
+        problems.extend(LabelProblem(where, row, kind, f"{name}: {text}") for kind, text in judged)
+        if indexed is not None and indexed.label != label:
+            text = f"the index says label {views_text(indexed.label)}, the shard holds {views_text(label)}"
             problems.append(LabelProblem(where, row, INDEX_MISMATCH, f"{name}: {text}"))
+        if listed is not None and not judged and indexed is not None and indexed.ambiguity is not None:
+            stored = Ambiguity(listed[row], *indexed.ambiguity)
+            problems.extend(
+                LabelProblem(where, row, kind, f"{name}: {text}")
+                for kind, text in cover.judge_covers(case, label, stored)
+            )
     return problems, int(rows.size)
+
+
+def _listed_covers(shard: ShardReader, count: int) -> list[tuple[int, ...]] | None:
+    """Each sample's stored minimum covers (version 2), None for a version-1 shard."""
+    if shard.attributes.schema_version < 2:
+        return None
+    covers, offsets = shard.array(COVERS), shard.array(offsets_array(COVERS))
+    if offsets.shape != (count + 1,):
+        raise ValueError(f"covers offsets {offsets.shape} do not match {count} samples")
+    return [tuple(int(c) for c in covers[offsets[i] : offsets[i + 1]]) for i in range(count)]
 
 
 def _refined_sets(shard: ShardReader, num_views: int) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.int64]]:
@@ -355,17 +406,68 @@ class TaskRows:
             text = f"label {views_text(label)} is minimum but not the {choice} choice {views_text(expected.label)}"
             yield NOT_LEXICOGRAPHIC, text
 
+    def judge_covers(self, case: int, label: int, stored: Ambiguity) -> Iterator[tuple[str, str]]:
+        """(kind, text) where the stored minimum covers, their count or support differ from an
+        enumeration of every view set of the label's size (the label already judged minimum)."""
+        rows = self.undominated[(self.undominated & np.uint64(case)) == 0]
+        try:
+            expected = every_minimum_cover(rows, label.bit_count(), self.search_limit)
+        except SolverFailure as exc:
+            yield UNSOLVED, f"minimum covers of label {views_text(label)} could not be checked ({exc})"
+            return
+        support = 0
+        for found in expected.covers:
+            support |= found
+        if expected.complete:
+            count, listed = len(expected.covers), set(expected.covers)
+            if stored.exact and stored.count != count:
+                yield COVERS_WRONG, f"the index counts {stored.count} minimum covers, there are {count}"
+            elif not stored.exact and stored.count > count:
+                yield COVERS_WRONG, f"the index says at least {stored.count} minimum covers, there are {count}"
+            if stored.exact and set(stored.listed) != listed:
+                yield COVERS_WRONG, f"the {len(stored.listed)} listed minimum covers are not the {count} that exist"
+            elif not set(stored.listed) <= listed:
+                yield COVERS_WRONG, "a listed cover is not a minimum cover"
+        else:
+            support = _support_by_highs(rows, label.bit_count())
+        if stored.support != support:
+            yield COVERS_WRONG, f"support {views_text(stored.support)}, the minimum covers use {views_text(support)}"
 
-def undominated(masks: npt.ArrayLike) -> MaskArray:
-    """Distinct masks that contain no other mask, sorted: a cover of these covers every mask."""
-    distinct = np.unique(np.asarray(masks, dtype=np.uint64))
-    keep = np.ones(distinct.size, dtype=bool)
-    for start in range(0, distinct.size, 512):
-        block = distinct[start : start + 512]
-        subset = (block[:, None] & distinct[None, :]) == distinct[None, :]  # distinct[j] within block[i]
-        subset[np.arange(block.size), np.arange(start, start + block.size)] = False
-        keep[start : start + block.size] = ~subset.any(axis=1)
-    return distinct[keep]
+
+@dataclass(frozen=True)
+class AllCovers:
+    covers: list[int]
+    """Every minimum cover found; all of them when ``complete``."""
+    complete: bool
+
+
+def every_minimum_cover(rows: MaskArray, size: int, search_limit: int = SEARCH_LIMIT) -> AllCovers:
+    """Every cover of ``rows`` by ``size`` views (the minimum size), by trying each combination of the
+    views left after the forced ones (single-view rows); incomplete past ``search_limit`` combinations."""
+    if rows.size == 0:
+        return AllCovers([0], True)
+    singles = rows[np.bitwise_count(rows) == 1]
+    forced = int(np.bitwise_or.reduce(singles)) if singles.size else 0
+    rest = rows[(rows & np.uint64(forced)) == 0]
+    if rest.size == 0:
+        return AllCovers([forced], True)
+    union = int(np.bitwise_or.reduce(rest))
+    candidates = [v for v in range(union.bit_length()) if union >> v & 1]
+    free = size - forced.bit_count()
+    if math.comb(len(candidates), free) > search_limit:
+        return AllCovers([], False)
+    return AllCovers([forced | c for c in _Bitsets(rest, candidates).every(free)], True)
+
+
+def _support_by_highs(rows: MaskArray, size: int) -> int:
+    """Views in some cover of ``size`` views, asked of HiGHS one view at a time."""
+    union = int(np.bitwise_or.reduce(rows))
+    candidates = [v for v in range(union.bit_length()) if union >> v & 1]
+    support = 0
+    for view in candidates:
+        if _min_cover_size(rows, candidates, {view: 1}, exactly=size) == size:
+            support |= 1 << view
+    return support
 
 
 class SolverFailure(Exception):
@@ -445,6 +547,15 @@ class _Bitsets:
         padded = np.zeros((packed.shape[0], -(-packed.shape[1] // 8) * 8), dtype=np.uint8)
         padded[:, : packed.shape[1]] = packed
         return padded.view(np.uint64)
+
+    def every(self, size: int) -> list[int]:
+        """Masks of every ``size``-combination that covers all rows."""
+        found: list[int] = []
+        for combinations in _combination_chunks(len(self.candidates), size):
+            covered = np.bitwise_or.reduce(self.columns[combinations], axis=1)
+            for hit in np.flatnonzero((covered == self.full[None, :]).all(axis=1)).tolist():
+                found.append(sum(1 << self.candidates[i] for i in combinations[hit].tolist()))
+        return found
 
     def first(self, size: int, tries: int) -> int | None:
         """Mask of the first cover among the first ``tries`` size-combinations in lexicographic order."""

@@ -13,7 +13,7 @@ from typing import Any
 import pyarrow.compute as pc
 
 from datagen.errors import InvalidArgument
-from storage import Dataset, committed_tasks, stored_bytes
+from storage import Dataset, LabelAmbiguity, committed_tasks, stored_bytes
 
 COMMITTED = "committed"
 FAILED = "failed"
@@ -135,6 +135,8 @@ class SampleDetails:
     """Keys of the refined cloud P(O_S) stored in the shard."""
     observed: int
     """Keys of the observed cloud keys(O_S) stored in the shard."""
+    ambiguity: LabelAmbiguity | None = None
+    """The label's minimum covers, count and support (version-2 datasets)."""
 
 
 def find_sample(dataset: Dataset, text: str) -> int:
@@ -167,4 +169,5 @@ def describe_sample(dataset: Dataset, row: int) -> SampleDetails:
         num_views=width,
         points=len(dataset.keys(row, "points")),
         observed=len(dataset.keys(row, "observed")),
+        ambiguity=dataset.ambiguity(row) if dataset.has_ambiguity else None,
     )

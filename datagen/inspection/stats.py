@@ -56,6 +56,8 @@ class DatasetStats:
     """``p0``...``p100`` of the labelling time per sample, empty labels included."""
     solver_proofs: dict[str, int]
     """How each label was proven optimal ('none' for an empty label) -> samples."""
+    ambiguity: LabelAmbiguityStats | None
+    """How many minimum covers the labels were chosen from (None for a version-1 dataset)."""
     failed: list[FailedTask]
     points_per_sample: npt.NDArray[np.int64] = field(repr=False, compare=False)
     """The raw values behind the percentiles, for the histograms (not in `to_json`)."""
@@ -80,11 +82,56 @@ class DatasetStats:
             "points_percentiles": dict(self.points_percentiles),
             "solver_seconds_percentiles": dict(self.solver_seconds_percentiles),
             "solver_proofs": dict(self.solver_proofs),
+            "ambiguity": None if self.ambiguity is None else self.ambiguity.to_json(),
             "failed": [
                 {"task_id": f.task_id, "object": f.object_name, "origin": f.origin, "message": f.message}
                 for f in self.failed
             ],
         }
+
+
+@dataclass(frozen=True)
+class LabelAmbiguityStats:
+    """The labels' ambiguity (version 2): how often the minimum cover is unique, how many there are,
+    how many views could take part, by case size and overall."""
+
+    unique: dict[str, float]
+    """Case size (and ``all``) -> share of non-empty labels with exactly one minimum cover."""
+    median_covers: dict[str, float]
+    """Case size (and ``all``) -> median count of minimum covers of the non-empty labels."""
+    capped: int
+    """Labels whose count is a lower bound (more minimum covers than the config's cap)."""
+    count_percentiles: dict[str, float | None]
+    support_size_percentiles: dict[str, float | None]
+    """Views in any minimum cover, per non-empty label."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "unique": dict(self.unique),
+            "median_covers": dict(self.median_covers),
+            "capped": self.capped,
+            "count_percentiles": dict(self.count_percentiles),
+            "support_size_percentiles": dict(self.support_size_percentiles),
+        }
+
+
+def ambiguity_stats(dataset: Dataset) -> LabelAmbiguityStats | None:
+    """`LabelAmbiguityStats` from the index alone; None for a dataset without them."""
+    if not dataset.has_ambiguity:
+        return None
+    index = dataset.index
+    labelled = ~index.column("empty_label").to_numpy(zero_copy_only=False)
+    counts = index.column("min_covers").to_numpy()[labelled]
+    sizes = index.column("case_size").to_numpy()[labelled]
+    support = np.bitwise_count(index.column("label_support").to_numpy()[labelled]).astype(np.int64)
+    groups = {str(int(size)): counts[sizes == size] for size in np.unique(sizes)} | {"all": counts}
+    return LabelAmbiguityStats(
+        unique={name: float(np.mean(found == 1)) for name, found in groups.items() if found.size},
+        median_covers={name: float(np.median(found)) for name, found in groups.items() if found.size},
+        capped=int(np.count_nonzero(~index.column("min_covers_exact").to_numpy(zero_copy_only=False)[labelled])),
+        count_percentiles=percentiles(counts),
+        support_size_percentiles=percentiles(support),
+    )
 
 
 def percentiles(values: npt.NDArray[Any]) -> dict[str, float | None]:
@@ -127,6 +174,7 @@ def dataset_stats(dataset: Dataset) -> DatasetStats:
         points_percentiles=percentiles(points),
         solver_seconds_percentiles=percentiles(seconds),
         solver_proofs=_sorted_counts(index.column("solver_proof").to_pylist()),
+        ambiguity=ambiguity_stats(dataset),
         failed=[FailedTask(t.task_id, t.object_name, t.origin, t.message) for t in failed_tasks(dataset, committed)],
         points_per_sample=points,
         solver_seconds=seconds,

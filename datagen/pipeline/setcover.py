@@ -87,10 +87,31 @@ class CoverResult:
     seconds: float
     proof: str = "none"
     """How optimality was proven: 'forced', 'lp-bound', 'search', 'mip' ('none' for an empty U)."""
+    ambiguity: CoverAmbiguity | None = None
+    """Every minimum cover the label was chosen from (None when not asked for)."""
 
     @property
     def views(self) -> tuple[int, ...]:
         return mask_to_views(self.label)
+
+
+@dataclass(frozen=True)
+class CoverAmbiguity:
+    """The minimum covers of one case: the label is one of them, and a planner that predicts any
+    other covers just as much with just as few views.
+
+    ``support`` is always exact. ``covers`` holds every minimum cover when ``exact``; past the cap
+    (or the enumeration's node budget) it holds the label and the first others found, and ``count``
+    is then a lower bound.
+    """
+
+    covers: tuple[int, ...]
+    """Minimum covers as view masks, sorted as tuples of view indices; the label is always here."""
+    count: int
+    """How many minimum covers exist (exact when ``exact``, else a lower bound)."""
+    exact: bool
+    support: int
+    """Mask of the views that belong to at least one minimum cover."""
 
 
 def mask_to_views(mask: int) -> tuple[int, ...]:
@@ -132,7 +153,12 @@ class TaskCover:
     """The reduced cover rows of one task (P_full's masks), ready to label any case."""
 
     def __init__(
-        self, full_masks: npt.ArrayLike, num_views: int, time_limit: float = 10.0, tie_break: TieBreak = "index"
+        self,
+        full_masks: npt.ArrayLike,
+        num_views: int,
+        time_limit: float = 10.0,
+        tie_break: TieBreak = "index",
+        cover_cap: int | None = None,
     ) -> None:
         if tie_break not in TIE_BREAKS:
             raise LabelError(f"unknown tie-break {tie_break!r}; choose one of {', '.join(TIE_BREAKS)}")
@@ -140,6 +166,8 @@ class TaskCover:
         self.num_views = num_views
         self.time_limit = time_limit
         self.tie_break = tie_break
+        self.cover_cap = cover_cap
+        """Most minimum covers listed per case (None: the labels alone, no enumeration)."""
         self.minimal = minimal_masks(self.full_masks)
 
     def universe_size(self, case: int) -> int:
@@ -154,6 +182,9 @@ class TaskCover:
         order = self.view_order(case)
         solution = solve_cover(rows, self.num_views, self.time_limit, threads, order) if rows.size else None
         label = solution.label if solution else 0
+        ambiguity = None
+        if self.cover_cap is not None:
+            ambiguity = minimum_covers(rows, self.num_views, label, self.cover_cap, self.time_limit, threads)
         return CoverResult(
             label=label,
             status="optimal" if rows.size else "empty",
@@ -162,6 +193,7 @@ class TaskCover:
             rows_after=int(rows.size),
             seconds=time.perf_counter() - started,
             proof=solution.proof if solution else "none",
+            ambiguity=ambiguity,
         )
 
     def view_order(self, case: int) -> list[int]:
@@ -342,6 +374,129 @@ class CoverSearch:
             if (rows == 0).any():
                 return False
         return False
+
+
+ENUMERATION_NODES_PER_COVER = 64
+"""Nodes the enumeration may visit per cover it may list (a count, not a time, so that which covers
+are listed never depends on the machine); past it the count is a lower bound."""
+
+
+def minimum_covers(
+    rows: npt.ArrayLike, num_views: int, label: int, cap: int, time_limit: float = 10.0, threads: int = 1
+) -> CoverAmbiguity:
+    """Every minimum cover of ``rows`` (up to ``cap`` of them), their count and their support.
+
+    ``label`` must be a minimum cover (its size is the minimum). Views forced by single-view rows
+    are in every cover. The rest are enumerated by `CoverEnumerator`; when it stops early (more than
+    ``cap`` covers, or its node budget spent) the support is completed view by view: v is in some
+    minimum cover exactly when the rows v leaves open can be covered by k - 1 other views.
+    """
+    if cap < 1:
+        raise LabelError(f"the cover cap must be at least 1, got {cap}")
+    remaining = minimal_masks(rows)
+    if remaining.size == 0:
+        return CoverAmbiguity(covers=(0,), count=1, exact=True, support=0)
+    if not covers(label, remaining):
+        raise LabelError(f"label {mask_to_views(label)} does not cover the rows it was computed for")
+    forced = 0
+    for single in remaining[popcount(remaining) == 1].tolist():
+        forced |= int(single)
+    rest = remaining[(remaining & np.uint64(forced)) == 0]
+    need = label.bit_count() - forced.bit_count()
+    if rest.size == 0:
+        return CoverAmbiguity(covers=(forced,), count=1, exact=True, support=forced)
+    allowed = int(np.bitwise_or.reduce(rest))
+    enumerator = CoverEnumerator(cap, ENUMERATION_NODES_PER_COVER * cap)
+    found, exact = enumerator.covers(rest, allowed, need)
+    listed = {forced | f for f in found}
+    support = int(np.bitwise_or.reduce(np.asarray(sorted(listed), dtype=np.uint64)))
+    if not exact:
+        support |= _other_support(rest, allowed, need, support & ~forced, time_limit, threads) | forced
+        keep = sorted(listed - {label}, key=mask_to_views)[: cap - 1]
+        listed = {label, *keep}
+    elif label not in listed:
+        raise LabelError(f"label {mask_to_views(label)} is not among the minimum covers enumerated")
+    ordered = tuple(sorted(listed, key=mask_to_views))
+    return CoverAmbiguity(covers=ordered, count=len(found), exact=exact, support=support)
+
+
+def _other_support(rows: MaskArray, allowed: int, need: int, known: int, time_limit: float, threads: int) -> int:
+    """The views outside ``known`` that belong to some cover of ``need`` views of ``allowed``."""
+    extra = 0
+    candidates = list(mask_to_views(allowed))
+    for view in mask_to_views(allowed & ~known):
+        rest = rows[(rows & np.uint64(1 << view)) == 0]
+        try:
+            possible = CoverSearch(SEARCH_NODE_BUDGET).can_cover(rest, allowed & ~(1 << view), need - 1)
+        except _BudgetExceeded:
+            size = _solve(rows, candidates, {view: 1}, time_limit, threads)
+            possible = size is not None and size <= need
+        if possible:
+            extra |= 1 << view
+    return extra
+
+
+class CoverEnumerator:
+    """Lists every cover of ``need`` views by branch and bound, each exactly once.
+
+    As `CoverSearch.can_cover`, it branches on the row with the fewest allowed views: some view of
+    that row is in every cover, and the branch of its i-th view excludes the views before it, so
+    the branches partition the covers. Only a minimum ``need`` is meaningful: every leaf where no row
+    is left open is then a cover of exactly ``need`` views.
+    """
+
+    def __init__(self, cap: int, node_budget: int) -> None:
+        self.cap = cap
+        self.node_budget = node_budget
+        self.nodes = 0
+        self.found: list[int] = []
+
+    def covers(self, rows: MaskArray, allowed: int, need: int) -> tuple[list[int], bool]:
+        """(covers found, whether they are all of them). Stops after ``cap + 1`` covers, so that a
+        count above the cap is told apart from one at it."""
+        self.nodes, self.found = 0, []
+        try:
+            self._walk(rows, allowed, need, 0)
+        except _BudgetExceeded:
+            return self.found, False
+        return self.found, True
+
+    def _add(self, cover: int) -> None:
+        self.found.append(cover)
+        if len(self.found) > self.cap:
+            raise _BudgetExceeded
+
+    def _walk(self, rows: MaskArray, allowed: int, need: int, chosen: int) -> None:
+        self.nodes += 1
+        if self.nodes > self.node_budget:
+            raise _BudgetExceeded
+        if rows.size == 0:
+            self._add(chosen)
+            return
+        if need == 0:
+            return
+        rows = rows & np.uint64(allowed)
+        widths = popcount(rows)
+        if widths.min() == 0:
+            return
+        if need == 1:
+            common = int(np.bitwise_and.reduce(rows))
+            while common:
+                view = common & -common
+                common ^= view
+                self._add(chosen | view)
+            return
+        if _disjoint_rows(rows, widths) > need:
+            return
+        branch = int(rows[int(np.argmin(widths))])
+        while branch:
+            view = branch & -branch
+            branch ^= view
+            self._walk(rows[(rows & np.uint64(view)) == 0], allowed, need - 1, chosen | view)
+            allowed &= ~view
+            rows = rows & np.uint64(allowed)
+            if (rows == 0).any():
+                return
 
 
 def _disjoint_rows(rows: MaskArray, widths: npt.NDArray[np.int64]) -> int:

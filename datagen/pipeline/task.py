@@ -10,7 +10,7 @@ without re-imaging or re-refining.
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -86,6 +86,8 @@ class TaskResult:
     dropped_empty: int
     metadata: dict[str, object]
     """Per-sample metadata shared by every sample of the task (PIPELINE.md section 8)."""
+    cover_rows: npt.NDArray[np.uint64] = field(default_factory=lambda: np.empty(0, dtype=np.uint64))
+    """The undominated masks of P_full: every case's set-cover rows are those its views miss."""
     seconds: dict[str, float] = field(default_factory=dict)
 
 
@@ -170,13 +172,65 @@ def run_task(
     timings["refine"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
+    labelled = label_task(sets, cases, config, threads)
+    samples, dropped = labelled_samples(task_id, cases, labelled, inputs, config)
+    timings["label"] = time.perf_counter() - clock
+    return TaskResult(
+        task_id=task_id,
+        object_id=spec.object_id,
+        object_name=spec.name,
+        rotation=rotation,
+        sets=sets,
+        cases=tuple(cases),
+        samples=tuple(samples),
+        failures=tuple(labelled.failures),
+        dropped_empty=dropped,
+        metadata=task_metadata(config, refiner),
+        cover_rows=labelled.cover.minimal,
+        seconds=timings,
+    )
+
+
+@dataclass(frozen=True)
+class TaskLabels:
+    """P_full's coverage at one alpha and every case's label on it."""
+
+    coverage: Coverage
+    cover: TaskCover
+    labels: dict[int, CoverResult]
+    failures: list[CaseFailure]
+
+
+def label_task(sets: TaskSets, cases: Sequence[int], config: GenerationConfig, threads: int = 1) -> TaskLabels:
+    """P_full, coverage and each case's exact label (with its minimum covers) for ``config.alpha``,
+    from the P_i alone: what generation and `relabel` share."""
     coverage = coverage_table(sets.refined, config.alpha)
-    labels, failures = label_cases(coverage, cases, config, threads)
+    cover = task_cover(coverage.masks, config)
+    labels, failures = label_cases(cover, cases, threads)
+    return TaskLabels(coverage, cover, labels, failures)
+
+
+def task_cover(full_masks: npt.ArrayLike, config: GenerationConfig, list_covers: bool = True) -> TaskCover:
+    """The label solver of one task as the config asks for it (the one place it is built);
+    ``list_covers=False`` skips listing each case's minimum covers (labels alone)."""
+    cap = config.label_cover_cap if list_covers else None
+    return TaskCover(full_masks, config.num_views, config.solver_time_limit, config.label_tie_break, cap)
+
+
+def labelled_samples(
+    task_id: str,
+    cases: Sequence[int],
+    labelled: TaskLabels,
+    inputs: Mapping[int, tuple[PackedKeys, PackedKeys]],
+    config: GenerationConfig,
+) -> tuple[list[Sample], int]:
+    """The task's samples in case order (cases without a label skipped) and how many empty
+    labels ``empty_labels = "drop"`` dropped; ``inputs`` maps a case to (P(O_S), keys(O_S))."""
     samples, dropped = [], 0
     for case in cases:
-        if case not in labels:
+        cover = labelled.labels.get(case)
+        if cover is None:
             continue
-        cover = labels[case]
         empty = cover.status == "empty"
         if empty and config.empty_labels == "drop":
             dropped += 1
@@ -189,35 +243,13 @@ def run_task(
                 label=cover.label,
                 points=points,
                 observed=observed,
-                full_size=len(coverage),
+                full_size=len(labelled.coverage),
                 universe_size=cover.rows_before,
                 cover=cover,
                 empty_label=empty,
             )
         )
-    timings["label"] = time.perf_counter() - clock
-    return TaskResult(
-        task_id=task_id,
-        object_id=spec.object_id,
-        object_name=spec.name,
-        rotation=rotation,
-        sets=sets,
-        cases=tuple(cases),
-        samples=tuple(samples),
-        failures=tuple(failures),
-        dropped_empty=dropped,
-        metadata=task_metadata(config, refiner),
-        seconds=timings,
-    )
-
-
-def relabel(
-    sets: TaskSets, cases: Sequence[int], config: GenerationConfig, threads: int = 1
-) -> tuple[Coverage, dict[int, CoverResult], list[CaseFailure]]:
-    """P_full, coverage and labels for ``config.alpha`` from the stored P_i alone."""
-    coverage = coverage_table(sets.refined, config.alpha)
-    labels, failures = label_cases(coverage, cases, config, threads)
-    return coverage, labels, failures
+    return samples, dropped
 
 
 def task_metadata(config: GenerationConfig, refiner: Refiner) -> dict[str, object]:
@@ -232,10 +264,9 @@ def task_metadata(config: GenerationConfig, refiner: Refiner) -> dict[str, objec
 
 
 def label_cases(
-    coverage: Coverage, cases: Sequence[int], config: GenerationConfig, threads: int = 1
+    solver: TaskCover, cases: Sequence[int], threads: int = 1
 ) -> tuple[dict[int, CoverResult], list[CaseFailure]]:
-    """Each case's exact label on one coverage table; a case the solver cannot label is a failure."""
-    solver = TaskCover(coverage.masks, config.num_views, config.solver_time_limit, config.label_tie_break)
+    """Each case's exact label on one task's rows; a case the solver cannot label is a failure."""
     labels: dict[int, CoverResult] = {}
     failures: list[CaseFailure] = []
     for case in cases:

@@ -486,6 +486,55 @@ def test_relabel_to_another_alpha_validates(engine_dataset: EngineDataset, tmp_p
     assert len(read_failures(open_location(out))) == engine_dataset.failed_tasks
 
 
+def test_relabel_adds_the_covers_to_a_version_1_dataset(tmp_path: Path) -> None:
+    """Relabelling a version-1 dataset at its own alpha gives exactly a fresh version-2 generation of the
+    same tasks: same samples and labels, and every minimum cover, count, support and cover row."""
+    from support import storage as fx
+
+    old, fresh, out = tmp_path / "v1", tmp_path / "v2", tmp_path / "relabelled"
+    fx.build_dataset(str(old), finalise_index=True, schema_version=1)
+    fx.build_dataset(str(fresh), finalise_index=True)
+    result = shards("relabel", str(old), "--out", str(out))
+    assert result.exit_code == 0, result.output
+    assert info_of(str(out)).schema_version == 2 and info_of(str(out)).config_hash == info_of(str(old)).config_hash
+    assert assert_same_samples(str(out), str(fresh)) == len(open_dataset(str(fresh)))
+    checked = shards("validate", str(out), "--all")
+    assert checked.exit_code == 0, checked.output
+
+
+def test_validate_all_recounts_the_minimum_covers(tmp_path: Path) -> None:
+    """`--all` enumerates every view set of the label's size itself: a wrong count or support in the
+    index, or a listed cover dropped from an exact list, is a line naming the sample."""
+    from support import storage as fx
+
+    from schemas.index import INDEX_SCHEMA
+
+    root = tmp_path / "v2"
+    fx.build_dataset(str(root), finalise_index=True)
+    table = pq.read_table(root / "index.parquet")
+    counts = table.column("min_covers").to_numpy().copy()
+    support = table.column("label_support").to_numpy().copy()
+    row = int(np.flatnonzero(counts > 2)[0])
+    counts[row] += 1
+    other = int(np.flatnonzero(counts > 2)[1])
+    missing = next(
+        v
+        for v in range(32)
+        if not int(support[other]) >> v & 1 and not int(table["view_state"][other].as_py()) >> v & 1
+    )
+    support[other] |= np.uint64(1 << missing)
+    for name, values in (("min_covers", counts), ("label_support", support)):
+        table = table.set_column(table.schema.get_field_index(name), name, pa.array(values))
+    pq.write_table(table.cast(INDEX_SCHEMA), root / "index.parquet")
+    report = label_check.check_labels(str(root), full=True)
+    lines = [p.line for p in report.problems]
+    names = table.column("sample_id").to_pylist()
+    assert f"{names[row]}: the index counts {counts[row]} minimum covers, there are {counts[row] - 1}" in lines
+    assert any(line.startswith(f"{names[other]}: support ") for line in lines)
+    assert {p.kind for p in report.problems} == {label_check.COVERS_WRONG}
+    assert len(lines) == 2
+
+
 def test_relabel_into_an_existing_dataset_is_refused(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
     target = Path(shutil.copytree(engine_dataset.url, tmp_path / "existing"))
     before = (target / "dataset.json").read_bytes()

@@ -323,6 +323,24 @@ def test_poco_refiner_one_and_two_worker_cpus_give_identical_samples(inputs: Pat
     assert any(len(dataset.keys(i, "points")) > len(dataset.keys(i, "observed")) for i in range(len(dataset)))
 
 
+def test_a_version_1_dataset_keeps_its_layout_when_a_job_adds_tasks(inputs: Path, tmp_path: Path) -> None:
+    """A dataset made before schema version 2 (no minimum covers) that a job of this version writes into
+    gets its new tasks in version 1 too, so readers never meet two layouts in one dataset."""
+    from datagen.engine.driver import dataset_info
+    from storage import init_dataset
+
+    out = tmp_path / "made-by-version-1"
+    old = dataset_info(load_config(inputs / "one.toml")).model_copy(update={"schema_version": 1})
+    init_dataset(open_location(str(out)), old)
+    settings = RunSettings(home=tmp_path / "home", num_workers=RAY_CPUS, ray_address=None, out=str(out))
+    job = api.submit(inputs / "builtins.txt", inputs / "one.toml", settings)
+    assert job.state == DONE
+    dataset = open_dataset(str(out))
+    assert dataset.info.schema_version == 1 and not dataset.has_ambiguity
+    assert set(dataset.index.column("schema_version").to_pylist()) == {1}
+    assert validate(str(out), full=True) == []
+
+
 def test_refiner_gpus_without_a_gpu_is_one_clear_error(inputs: Path, tmp_path: Path) -> None:
     import ray
 

@@ -23,15 +23,14 @@ from datagen.evaluate.planners import (
     ScoredPlanner,
     make_planner,
 )
-from datagen.evaluate.scene import Scene, build_scene
+from datagen.evaluate.scene import Scene
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.ground_truth import GroundTruth
 from datagen.pipeline.imaging import Observation, TaskImaging
-from datagen.pipeline.objects.prepare import PreparedObject, prepare_object
+from datagen.pipeline.objects.prepare import PreparedObject
 from datagen.pipeline.objects.spec import ObjectSpec
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.factory import make_refiner
-from datagen.pipeline.viewspace import build_view_space
 from schemas.config import GenerationConfig
 
 HAND_COLUMNS = ([0, 1, 2], [2, 3], [3, 4, 5, 6], [6, 7], [7, 8, 9], [0, 9])
@@ -86,12 +85,6 @@ def make_scene(spec: ObjectSpec, columns: tuple[list[int], ...] | list[list[int]
 @pytest.fixture(scope="module")
 def hand(spec: ObjectSpec, config: GenerationConfig) -> RefinedScene:
     return RefinedScene(make_scene(spec, HAND_COLUMNS, 10), make_refiner(config), config)
-
-
-@pytest.fixture(scope="module")
-def real(spec: ObjectSpec, config: GenerationConfig) -> RefinedScene:
-    scene = build_scene(prepare_object(spec, config), 0, config, build_view_space(config.view_space))
-    return RefinedScene(scene, make_refiner(config), config)
 
 
 # --- greedy ------------------------------------------------------------------------------------------------

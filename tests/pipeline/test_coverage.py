@@ -19,7 +19,7 @@ from datagen.pipeline.objects.objects_file import read_objects_file
 from datagen.pipeline.objects.prepare import prepare_object
 from datagen.pipeline.refine import make_refiner
 from datagen.pipeline.setcover import TaskCover
-from datagen.pipeline.task import TaskResult, relabel, run_task
+from datagen.pipeline.task import TaskResult, label_task, run_task
 from datagen.pipeline.viewspace import build_view_space
 from schemas.config import GenerationConfig
 
@@ -202,7 +202,8 @@ def test_relabel_with_the_task_alpha_reproduces_run_task(capsule_runs: dict[str,
     keep = capsule_runs["keep"]
     assert keep.failures == () and keep.dropped_empty == 0
     assert [s.case for s in keep.samples] == list(keep.cases)
-    coverage, labels, failures = relabel(keep.sets, keep.cases, config)
+    labelled = label_task(keep.sets, keep.cases, config)
+    coverage, labels, failures = labelled.coverage, labelled.labels, labelled.failures
     assert failures == []
     assert coverage.alpha == config.alpha
     for sample in keep.samples:
@@ -240,7 +241,8 @@ def test_empty_labels_drop_removes_exactly_the_empty_samples(capsule_runs: dict[
 def test_relabel_for_another_alpha_matches_a_fresh_run(capsule_runs: dict[str, TaskResult]) -> None:
     keep, fresh = capsule_runs["keep"], capsule_runs["alpha5"]
     assert fresh.cases == keep.cases  # cases come from the visibility sets, not from alpha
-    coverage, labels, failures = relabel(keep.sets, keep.cases, GenerationConfig(alpha=5, refiner="none"))
+    labelled = label_task(keep.sets, keep.cases, GenerationConfig(alpha=5, refiner="none"))
+    coverage, labels, failures = labelled.coverage, labelled.labels, labelled.failures
     assert failures == [] and coverage.alpha == 5
     assert {s.case: s.label for s in fresh.samples} == {c: r.label for c, r in labels.items()}
     assert all(s.full_size == len(coverage) for s in fresh.samples)
@@ -249,7 +251,8 @@ def test_relabel_for_another_alpha_matches_a_fresh_run(capsule_runs: dict[str, T
 
 def test_alpha_1_labels_complete_every_capsule_case(capsule_runs: dict[str, TaskResult]) -> None:
     keep = capsule_runs["keep"]
-    coverage, labels, failures = relabel(keep.sets, keep.cases, GenerationConfig(alpha=1, refiner="none"))
+    labelled = label_task(keep.sets, keep.cases, GenerationConfig(alpha=1, refiner="none"))
+    coverage, labels, failures = labelled.coverage, labelled.labels, labelled.failures
     assert failures == []
     seen = reduce(np.union1d, keep.sets.refined)
     assert np.array_equal(coverage.keys, seen)

@@ -18,7 +18,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from support.meshes import REPO_ROOT, SHARED_MESHES, requires_shared_meshes
-from support.setcover_oracle import NoCover, oracle_cover, oracle_minimal
+from support.setcover_oracle import NoCover, oracle_cover, oracle_minimal, oracle_minimum_covers
 
 from datagen.pipeline import setcover
 from datagen.pipeline.coverage import coverage_table
@@ -422,7 +422,7 @@ def test_shared_mesh_labels_match_oracle(mesh: str) -> None:
     path = SHARED_MESHES / mesh
     if not path.is_file():
         pytest.skip(f"{path} not found")
-    config = GenerationConfig(alpha=10, imaging="targets", refiner="none")
+    config = GenerationConfig(alpha=10, imaging="targets", refiner="none", label_cover_cap=4096)
     options = ObjectOptions(size=0.15)
     spec = ObjectSpec(source=str(path), name=path.stem, options=options,
                       object_id=file_object_id(path.read_bytes(), options))  # fmt: skip
@@ -442,6 +442,8 @@ def test_shared_mesh_labels_match_oracle(mesh: str) -> None:
         assert sample.label == expected.label, (case, sample.cover.views, expected.views)
         assert sample.cover.objective == expected.size
         assert sample.empty_label == (not universe)
+        assert sample.cover.ambiguity is not None
+        check_ambiguity(sample.cover.ambiguity, sample.label, list(expected.every), config.label_cover_cap)
         stats["ties"] += expected.ties > 1
         stats[sample.cover.proof] += 1
     print(mesh, len(result.cases), dict(stats))
@@ -582,3 +584,65 @@ def test_bad_tie_break_and_order_are_label_errors() -> None:
         TaskCover(as_masks([0b11]), 2, tie_break="fewest")  # type: ignore[arg-type]
     with pytest.raises(LabelError, match="each of the 3 views once"):
         solve_cover(as_masks([0b011]), 3, order=[0, 0, 1])
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Every minimum cover (schema version 2): the covers, their count and support against the brute-force
+# enumeration of every view set of the minimum size
+# ---------------------------------------------------------------------------------------------------------
+
+
+def check_ambiguity(found: setcover.CoverAmbiguity, label: int, expected: list[int], cap: int) -> None:
+    support = 0
+    for cover in expected:
+        support |= cover
+    assert found.support == support
+    assert label in found.covers and label in expected
+    assert list(found.covers) == sorted(found.covers, key=views_of)
+    assert set(found.covers) <= set(expected)
+    if len(expected) <= cap:
+        assert found.exact and found.count == len(expected)
+        assert set(found.covers) == set(expected)
+    else:
+        assert not found.exact and cap < found.count <= len(expected)
+        assert len(found.covers) == cap
+
+
+@settings(max_examples=200, **HYPOTHESIS)
+@given(cover_instances(), st.integers(1, 40))
+def test_minimum_covers_match_the_enumeration(instance: tuple[int, list[int]], cap: int) -> None:
+    n, rows = instance
+    label = solve_min_cover(as_masks(rows), n)
+    expected = oracle_minimum_covers(rows)
+    check_ambiguity(setcover.minimum_covers(as_masks(rows), n, label, cap), label, expected, cap)
+
+
+@settings(max_examples=100, **HYPOTHESIS)
+@given(cases_of())
+def test_task_cover_lists_the_covers_of_each_case(instance: tuple[int, list[int], int]) -> None:
+    n, masks, case = instance
+    result = TaskCover(as_masks(masks), n, cover_cap=16).label(case)
+    universe = [m for m in masks if m & case == 0]
+    assert result.ambiguity is not None
+    check_ambiguity(result.ambiguity, result.label, oracle_minimum_covers(universe), 16)
+
+
+def test_minimum_covers_past_the_node_budget_keep_an_exact_support(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Six disjoint pairs of views: 2**6 minimum covers. With a node budget too small to list them,
+    the count is a lower bound but every view is still found in the support."""
+    rows = [0b11 << (2 * i) for i in range(6)]
+    label = solve_min_cover(as_masks(rows), 12)
+    monkeypatch.setattr(setcover, "ENUMERATION_NODES_PER_COVER", 1)
+    found = setcover.minimum_covers(as_masks(rows), 12, label, cap=8)
+    assert not found.exact and found.count < 64
+    assert found.support == (1 << 12) - 1
+    assert label == 0b010101010101 and label in found.covers
+
+
+def test_minimum_covers_of_an_empty_universe_and_of_forced_views() -> None:
+    empty = setcover.minimum_covers(as_masks([]), 8, 0, cap=4)
+    assert (empty.covers, empty.count, empty.exact, empty.support) == ((0,), 1, True, 0)
+    forced = setcover.minimum_covers(as_masks([0b1, 0b100, 0b101]), 8, 0b101, cap=4)
+    assert (forced.covers, forced.count, forced.exact, forced.support) == ((0b101,), 1, True, 0b101)
+    with pytest.raises(LabelError, match="does not cover"):
+        setcover.minimum_covers(as_masks([0b11, 0b1100]), 8, 0b11, cap=4)

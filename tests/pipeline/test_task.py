@@ -20,7 +20,7 @@ from datagen.pipeline.objects.prepare import prepare_object
 from datagen.pipeline.objects.spec import ObjectSpec
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine import make_refiner
-from datagen.pipeline.task import TaskResult, relabel, run_task, sample_id
+from datagen.pipeline.task import TaskResult, label_task, run_task, sample_id
 from datagen.pipeline.viewspace import build_view_space
 from schemas.config import GenerationConfig
 from schemas.version import SCHEMA_VERSION
@@ -223,7 +223,8 @@ def test_run_twice_is_identical(task, capsule_spec: ObjectSpec) -> None:
 
 def test_relabel_with_the_same_alpha_reproduces_labels(task) -> None:
     config, result = task
-    coverage, labels, failures = relabel(result.sets, result.cases, config)
+    labelled = label_task(result.sets, result.cases, config)
+    coverage, labels, failures = labelled.coverage, labelled.labels, labelled.failures
     assert failures == []
     assert np.array_equal(coverage.keys, full_keys(result.sets.refined, config.alpha))
     assert {s.case: s.label for s in result.samples} == {c: labels[c].label for c in result.cases}
@@ -233,7 +234,8 @@ def test_relabel_with_the_same_alpha_reproduces_labels(task) -> None:
 def test_relabel_for_another_alpha_covers_the_new_u(task, alpha: int) -> None:
     config, result = task
     new = config.model_copy(update={"alpha": alpha})
-    coverage, labels, failures = relabel(result.sets, result.cases, new)
+    labelled = label_task(result.sets, result.cases, new)
+    coverage, labels, failures = labelled.coverage, labelled.labels, labelled.failures
     assert failures == []
     p_full = full_keys(result.sets.refined, alpha)
     assert np.array_equal(coverage.keys, p_full)

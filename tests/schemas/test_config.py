@@ -155,13 +155,17 @@ def test_round_trip_keeps_float_bits(tmp_path: Path) -> None:
     assert loaded.config_hash() == config.config_hash()
 
 
-def test_fields_added_later_keep_older_hashes_at_their_default() -> None:
-    """A dataset made before ``label_tie_break`` existed (its labels are the 'index' rule's) keeps its hash."""
+@pytest.mark.parametrize(("field", "other"), [("label_tie_break", "coverage"), ("label_cover_cap", 64)])
+def test_fields_added_later_keep_older_hashes_at_their_default(field: str, other: object) -> None:
+    """A dataset made before ``label_tie_break`` (its labels are the 'index' rule's) or
+    ``label_cover_cap`` (version 1: no covers listed) existed keeps its hash."""
     config = GenerationConfig()
-    before_the_field = {k: v for k, v in config.canonical_dict().items() if k != "label_tie_break"}
-    assert "label_tie_break" not in config.canonical_dict()
-    assert config.config_hash() == hashlib.sha256(canonical_json(before_the_field).encode()).hexdigest()
-    assert config_from_dict({"label_tie_break": "coverage"}).canonical_dict()["label_tie_break"] == "coverage"
+    data = config.model_dump(mode="json")
+    data["poco_weights"] = config.canonical_dict()["poco_weights"]
+    before_the_fields = {k: v for k, v in data.items() if k not in ("label_tie_break", "label_cover_cap")}
+    assert field not in config.canonical_dict()
+    assert config.config_hash() == hashlib.sha256(canonical_json(before_the_fields).encode()).hexdigest()
+    assert config_from_dict({field: other}).canonical_dict()[field] == other
 
 
 def test_hash_is_sha256_hex() -> None:
@@ -189,6 +193,7 @@ CHANGES = [
     {"empty_labels": "drop"},
     {"solver_time_limit": 20.0},
     {"label_tie_break": "coverage"},
+    {"label_cover_cap": 64},
     {"view_space": {"radius": 0.41}},
     {"view_space": {"source": "generated"}},
     {"view_space": {"source": "generated", "generator_seed": 1}},

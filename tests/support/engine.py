@@ -433,9 +433,10 @@ def assert_same_samples(url_a: str, url_b: str) -> int:
         assert table_a.column(name).equals(table_b.column(name)), f"index column {name} differs"
     location_a, location_b = open_location(url_a), open_location(url_b)
     commits_b = {r.task_id: r for r in committed_tasks(location_b)}
+    assert a.info.schema_version == b.info.schema_version
     for record in committed_tasks(location_a):
         shard_a = ShardReader(location_a, record.shard)
         shard_b = ShardReader(location_b, commits_b[record.task_id].shard)
-        for name in array_names():
+        for name in array_names(a.info.schema_version):
             np.testing.assert_array_equal(shard_a.array(name), shard_b.array(name), err_msg=f"{record.task_id} {name}")
     return len(ids_a)

@@ -37,6 +37,8 @@ class OracleCover:
     ties: int
     """How many covers have the minimum cardinality (1 = no tie to break); only counted when
     asked for, else -1."""
+    every: tuple[int, ...] = ()
+    """Every minimum cover (masks, in lexicographic order of their view tuples) when counted."""
 
     @property
     def views(self) -> tuple[int, ...]:
@@ -52,7 +54,7 @@ def oracle_cover(rows: Iterable[int], allowed: int | None = None, count_ties: bo
     only views in the mask ``allowed`` (default: every view)."""
     distinct = sorted({int(r) for r in rows})
     if not distinct:
-        return OracleCover(0, 0, 1 if count_ties else -1)
+        return OracleCover(0, 0, 1, (0,)) if count_ties else OracleCover(0, 0, -1)
     if allowed is not None:
         distinct = sorted({r & allowed for r in distinct})
     if distinct[0] == 0:
@@ -68,6 +70,7 @@ def oracle_cover(rows: Iterable[int], allowed: int | None = None, count_ties: bo
     for k in range(1, len(views) + 1):
         found: tuple[int, ...] | None = None
         ties = 0
+        every: list[int] = []
         tuples = itertools.combinations(range(len(views)), k)
         while True:
             chunk = np.fromiter(itertools.chain.from_iterable(itertools.islice(tuples, CHUNK)), dtype=np.int64)
@@ -82,14 +85,20 @@ def oracle_cover(rows: Iterable[int], allowed: int | None = None, count_ties: bo
                 if found is None:
                     found = tuple(int(i) for i in chunk[hits[0]])
                 ties += int(hits.size)
+                every += [sum(1 << views[int(i)] for i in chunk[hit]) for hit in hits]
                 if not count_ties:
                     break
         if found is not None:
             label = 0
             for index in found:
                 label |= 1 << views[index]
-            return OracleCover(label, k, ties if count_ties else -1)
+            return OracleCover(label, k, ties, tuple(every)) if count_ties else OracleCover(label, k, -1)
     raise AssertionError("unreachable: all views together cover every row")
+
+
+def oracle_minimum_covers(rows: Iterable[int]) -> list[int]:
+    """Every minimum-cardinality cover of ``rows`` (masks, in lexicographic order of view tuples)."""
+    return list(oracle_cover(rows, count_ties=True).every)
 
 
 def oracle_minimal(rows: Iterable[int]) -> list[int]:

@@ -76,10 +76,11 @@ def task_results() -> tuple:  # type: ignore[type-arg]
 
 
 @functools.cache
-def payloads() -> tuple[ShardPayload, ...]:
+def payloads(schema_version: int = SCHEMA_VERSION) -> tuple[ShardPayload, ...]:
+    """Every task's payload in layout ``schema_version`` (1: without the label ambiguity)."""
     from datagen.engine.shard_payload import task_payload
 
-    return tuple(task_payload(result, config()) for result in task_results())
+    return tuple(task_payload(result, config(), schema_version) for result in task_results())
 
 
 @functools.cache
@@ -91,10 +92,10 @@ def small_payload(samples: int = 6) -> ShardPayload:
     return task_payload(dataclasses.replace(result, samples=result.samples[:samples]), config())
 
 
-def dataset_info() -> DatasetInfo:
+def dataset_info(schema_version: int = SCHEMA_VERSION) -> DatasetInfo:
     cfg = config()
     return DatasetInfo(
-        schema_version=SCHEMA_VERSION,
+        schema_version=schema_version,
         config=cfg,
         config_hash=cfg.config_hash(),
         view_positions=[tuple(p) for p in _view_space().positions.tolist()],
@@ -108,11 +109,13 @@ def build_dataset(
     task_payloads: Sequence[ShardPayload] | None = None,
     attempt_id: str = ATTEMPT,
     finalise_index: bool = False,
+    schema_version: int = SCHEMA_VERSION,
 ) -> Location:
-    """Initialise a dataset at ``url`` and commit each payload (default: every task) with ``attempt_id``."""
+    """Initialise a dataset at ``url`` (layout ``schema_version``) and commit each payload (default:
+    every task, in that layout) with ``attempt_id``."""
     location = open_location(url)
-    init_dataset(location, dataset_info())
-    for payload in payloads() if task_payloads is None else task_payloads:
+    init_dataset(location, dataset_info(schema_version))
+    for payload in payloads(schema_version) if task_payloads is None else task_payloads:
         write_task(location, payload, attempt_id)
     if finalise_index:
         finalise(location)

@@ -1,0 +1,65 @@
+"""Set-cover facts a reader needs without a solver (schema version 2).
+
+A sample stores its minimum covers and its task stores ``cover_rows``, the undominated masks of
+P_full: U(S)'s rows are the ``cover_rows`` that miss S (a subset of a mask that misses S misses S
+too), and a view set covers U exactly when it meets every one of them. That is enough to judge any
+prediction: does it cover U, and how close is it to the nearest minimum cover. Masks are uint64
+bit masks over the views (bit i = view i).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+
+MaskArray = npt.NDArray[np.uint64]
+
+
+def undominated(masks: npt.ArrayLike) -> MaskArray:
+    """Distinct masks that contain no other mask, sorted: a view set meeting each of these meets
+    every mask."""
+    distinct = np.unique(np.asarray(masks, dtype=np.uint64))
+    keep = np.ones(distinct.size, dtype=bool)
+    for start in range(0, distinct.size, 512):
+        block = distinct[start : start + 512]
+        subset = (block[:, None] & distinct[None, :]) == distinct[None, :]  # distinct[j] within block[i]
+        subset[np.arange(block.size), np.arange(start, start + block.size)] = False
+        keep[start : start + block.size] = ~subset.any(axis=1)
+    return distinct[keep]
+
+
+def universe_rows(cover_rows: MaskArray, view_state: int) -> MaskArray:
+    """The set-cover rows of U(S): the task's undominated rows that the input views S miss."""
+    return cover_rows[(cover_rows & np.uint64(view_state)) == 0]
+
+
+def covers_universe(cover_rows: MaskArray, view_state: int, views: int) -> bool:
+    """Whether ``views`` (with the input views) cover every key of U(S)."""
+    rows = universe_rows(cover_rows, view_state)
+    return bool(((rows & np.uint64(views)) != 0).all())
+
+
+def cover_marginals(covers: Sequence[int] | MaskArray, num_views: int) -> npt.NDArray[np.float64]:
+    """For each view, the fraction of ``covers`` holding it (zeros when there are none)."""
+    masks = np.asarray(covers, dtype=np.uint64).reshape(-1)
+    if masks.size == 0:
+        return np.zeros(num_views, dtype=np.float64)
+    bits = (masks[:, None] >> np.arange(num_views, dtype=np.uint64)[None, :]) & np.uint64(1)
+    return bits.mean(axis=0, dtype=np.float64)
+
+
+def nearest_cover(covers: MaskArray, views: int) -> int:
+    """The cover sharing most views with ``views`` (minimum covers all have one size, so this is
+    also the one of best F1 against it); ties go to the first listed."""
+    masks = np.asarray(covers, dtype=np.uint64).reshape(-1)
+    if masks.size == 0:
+        raise ValueError("no covers to choose from")
+    shared = np.bitwise_count(masks & np.uint64(views))
+    return int(masks[int(np.argmax(shared))])
+
+
+def mask_views(mask: int) -> tuple[int, ...]:
+    """The views of a mask, ascending (the sort key of stored covers)."""
+    return tuple(v for v in range(mask.bit_length()) if mask >> v & 1)
