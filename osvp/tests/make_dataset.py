@@ -1,9 +1,10 @@
 """Write a small real dataset for the osvp tests with datagen's pipeline.
 
 Run as a script by conftest.py in a subprocess, so that the osvp test process itself never imports
-datagen: capsule, cone and torus at 2 rotations, refiner none (seconds, no Ray).
+datagen: capsule, cone and torus at 2 rotations, refiner none (seconds, no Ray). With V1_OUT, the
+same tasks are also written in schema version 1 (no minimum covers), as an older datagen wrote them.
 
-    python make_dataset.py OUT
+    python make_dataset.py OUT [V1_OUT]
 """
 
 from __future__ import annotations
@@ -26,21 +27,22 @@ from storage import finalise, init_dataset, open_location, write_task
 OBJECTS = ("builtin:capsule", "builtin:cone", "builtin:torus")
 
 
-def main(out: str) -> None:
+def main(out: str, v1_out: str | None = None) -> None:
     config = GenerationConfig(refiner="none", rotations=2)
     view_space = build_view_space(config.view_space)
-    location = open_location(out)
-    init_dataset(
-        location,
-        DatasetInfo(
-            schema_version=SCHEMA_VERSION,
-            config=config,
-            config_hash=config.config_hash(),
-            view_positions=[tuple(p) for p in view_space.positions.tolist()],
-            versions={},
-            created="2026-01-01T00:00:00",
-        ),
-    )
+    targets = [(open_location(out), SCHEMA_VERSION)] + ([(open_location(v1_out), 1)] if v1_out else [])
+    for location, version in targets:
+        init_dataset(
+            location,
+            DatasetInfo(
+                schema_version=version,
+                config=config,
+                config_hash=config.config_hash(),
+                view_positions=[tuple(p) for p in view_space.positions.tolist()],
+                versions={},
+                created="2026-01-01T00:00:00",
+            ),
+        )
     refiner = make_refiner(config)
     with tempfile.TemporaryDirectory() as folder:
         listing = Path(folder) / "objects.txt"
@@ -50,9 +52,11 @@ def main(out: str) -> None:
         prepared = prepare_object(spec, config)
         for rotation in range(config.rotations):
             result = run_task(prepared, rotation, config, view_space, refiner)
-            write_task(location, task_payload(result, config), "a1")
-    finalise(location)
+            for location, version in targets:
+                write_task(location, task_payload(result, config, version), "a1")
+    for location, _ in targets:
+        finalise(location)
 
 
 if __name__ == "__main__":
-    main(sys.argv[1])
+    main(*sys.argv[1:3])

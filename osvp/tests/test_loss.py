@@ -1,12 +1,14 @@
-"""SCLoss against values computed by hand from the paper's equation 3."""
+"""SCLoss against values computed by hand from the paper's equation 3, and the targets that allow for
+equally good covers (marginal, mincover, support) against hand-computed values."""
 
 from __future__ import annotations
 
 import math
+from types import SimpleNamespace
 
 import pytest
 import torch
-from osvp.loss import sc_loss
+from osvp.loss import AMBIGUITY_TARGETS, TARGETS, marginal_loss, mincover_loss, sc_loss, support_loss, target_loss
 
 
 def probability_loss(p: list[list[float]], g: list[list[float]], lam: float) -> float:
@@ -52,3 +54,73 @@ def test_refuses_mismatched_shapes_and_bad_lambda() -> None:
         sc_loss(torch.zeros(2, 3), torch.zeros(2, 4))
     with pytest.raises(ValueError, match="positive"):
         sc_loss(torch.zeros(1, 3), torch.zeros(1, 3), 0.0)
+
+
+def probabilities_to_logits(p: list[list[float]]) -> torch.Tensor:
+    return torch.logit(torch.tensor(p, dtype=torch.float64))
+
+
+def test_marginal_target_by_hand() -> None:
+    # p = (0.8, 0.4), marginals q = (0.5, 0.25), lambda 2:
+    # view 0: 2 * 0.5 * -ln 0.8 + 0.5 * -ln 0.2 = 0.223144 + 0.804719 = 1.027863
+    # view 1: 2 * 0.25 * -ln 0.4 + 0.75 * -ln 0.6 = 0.458145 + 0.383119 = 0.841265
+    # mean over the two views: 0.934564
+    value = float(marginal_loss(probabilities_to_logits([[0.8, 0.4]]), torch.tensor([[0.5, 0.25]]), 2.0))
+    assert value == pytest.approx(0.9345635456, rel=1e-9)
+
+
+def test_marginal_target_with_hard_marginals_is_scloss() -> None:
+    logits = probabilities_to_logits([[0.9, 0.2, 0.5], [0.3, 0.6, 0.95]])
+    bits = torch.tensor([[1.0, 0.0, 1.0], [0.0, 0.0, 1.0]], dtype=torch.float64)
+    assert float(marginal_loss(logits, bits, 1.25)) == pytest.approx(float(sc_loss(logits, bits, 1.25)), rel=1e-12)
+
+
+def test_mincover_target_takes_each_samples_nearest_cover_by_hand() -> None:
+    # lambda 1.25, three views; per cover SCLoss = (1/3) sum [1.25 g (-ln p) + (1 - g)(-ln(1 - p))]
+    # sample A, p = (0.8, 0.4, 0.3), covers {0} and {1}:
+    #   {0}: (1.25 * 0.223144 + 0.510826 + 0.356675) / 3 = 0.382143
+    #   {1}: (1.609438 + 1.25 * 0.916291 + 0.356675) / 3 = 1.037159  -> min 0.382143
+    # sample B, p = (0.1, 0.7, 0.6), covers {1, 2}, {0, 2} and a padding slot:
+    #   {1, 2}: (0.105361 + 1.25 * 0.356675 + 1.25 * 0.510826) / 3 = 0.396579
+    #   {0, 2}: (1.25 * 2.302585 + 1.203973 + 1.25 * 0.510826) / 3 = 1.573579  -> min 0.396579
+    # batch mean (0.382143 + 0.396579) / 2 = 0.389361
+    logits = probabilities_to_logits([[0.8, 0.4, 0.3], [0.1, 0.7, 0.6]])
+    covers = torch.tensor(
+        [[[1, 0, 0], [0, 1, 0], [0, 0, 0]], [[0, 1, 1], [1, 0, 1], [1, 1, 1]]], dtype=torch.float64
+    )  # the last slot of each sample is padding: never chosen, however cheap
+    valid = torch.tensor([[True, True, False], [True, True, False]])
+    assert float(mincover_loss(logits, covers, valid, 1.25)) == pytest.approx(0.3893610387, rel=1e-9)
+    # Only the second covers: (1.037159 + 1.573579) / 2 = 1.305369. The padding slots would be cheaper
+    # ({} for A: (1.609438 + 0.510826 + 0.356675) / 3 = 0.825646; {0, 1, 2} for B: 1.320869): masked out.
+    only_second = torch.tensor([[False, True, False], [False, True, False]])
+    assert float(mincover_loss(logits, covers, only_second, 1.25)) == pytest.approx(1.3053687452, rel=1e-9)
+    one = mincover_loss(logits, covers[:, :1], valid[:, :1], 1.25)  # a single cover is plain SCLoss
+    assert float(one) == pytest.approx(float(sc_loss(logits, covers[:, 0], 1.25)), rel=1e-12)
+
+
+def test_mincover_target_refuses_a_sample_without_covers() -> None:
+    with pytest.raises(ValueError, match="at least one cover"):
+        mincover_loss(torch.zeros(2, 3), torch.zeros(2, 1, 3), torch.tensor([[True], [False]]))
+
+
+def test_support_target_excuses_the_other_covers_views_by_hand() -> None:
+    # p = (0.8, 0.4, 0.7), label {0}, support {0, 2}, lambda 1.25:
+    # view 0: 1.25 * -ln 0.8 = 0.278929; view 1: -ln 0.6 = 0.510826; view 2: weight 0
+    # mean over the three views: (0.278929 + 0.510826) / 3 = 0.263252
+    logits = probabilities_to_logits([[0.8, 0.4, 0.7]])
+    label, support = torch.tensor([[1.0, 0.0, 0.0]]), torch.tensor([[1.0, 0.0, 1.0]])
+    assert float(support_loss(logits, label, support, 1.25)) == pytest.approx(0.2632516876, rel=1e-9)
+    assert float(support_loss(logits, label, label, 1.25)) == pytest.approx(float(sc_loss(logits, label, 1.25)))
+
+
+def test_target_loss_dispatches_and_names_what_is_missing() -> None:
+    logits = probabilities_to_logits([[0.8, 0.4, 0.7]])
+    label = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)
+    batch = SimpleNamespace(labels=label, marginals=None, support=None, covers=None, cover_mask=None)
+    assert float(target_loss("label", logits, batch, 1.25)) == pytest.approx(float(sc_loss(logits, label, 1.25)))
+    for target, missing in (("marginal", "marginals"), ("mincover", "covers"), ("support", "support")):
+        with pytest.raises(ValueError, match=f"target '{target}' needs the batch's {missing}"):
+            target_loss(target, logits, batch, 1.25)
+    with pytest.raises(ValueError, match="unknown target 'nope'; choose label, marginal, mincover, support"):
+        target_loss("nope", logits, batch, 1.25)
+    assert set(TARGETS) - set(AMBIGUITY_TARGETS) == {"label"}

@@ -1,5 +1,7 @@
-"""Training: one epoch learns, a resumed run equals an uninterrupted one, checkpoints are refused
-with one clear message when they do not fit or are damaged."""
+"""Training: one epoch learns, a resumed run equals an uninterrupted one with every target, the
+checkpoint's tuned threshold and default decoding reach the planner, a version-1 dataset trains on
+its labels only, and checkpoints are refused with one clear message when they do not fit or are
+damaged."""
 
 from __future__ import annotations
 
@@ -10,8 +12,11 @@ import pytest
 import torch
 from osvp.checkpoint import CheckpointError, load_checkpoint
 from osvp.data import DataError, SampleBank, split_rows
+from osvp.loss import AMBIGUITY_TARGETS, TARGETS
+from osvp.metrics import tune_threshold
 from osvp.network import PRESETS, build_network
-from osvp.train import TrainOptions, evaluate_rows, seeded_torch, stream_seed, train
+from osvp.planning import load_scorer
+from osvp.train import TrainOptions, predict_rows, run_rows, seeded_torch, stream_seed, train
 
 
 @pytest.fixture(scope="module")
@@ -29,10 +34,10 @@ def test_one_epoch_changes_the_weights_and_lowers_the_loss(bank: SampleBank, dat
     train_rows, _ = split_rows(bank, opts.split, opts.val_fraction, opts.seed)
     with seeded_torch(stream_seed(opts.seed, 0, 0), "cpu"):
         initial = build_network(opts.preset, bank.num_views)  # exactly the network train() starts from
-    before, _ = evaluate_rows(initial, bank, train_rows, PRESETS[opts.preset].num_points, opts)
+    before, _ = predict_rows(initial, bank, train_rows, PRESETS[opts.preset].num_points, opts)
     outcome = train(opts, bank=bank)
     trained = load_checkpoint(tmp_path / "run" / "last.pt").network()
-    after, _ = evaluate_rows(trained, bank, train_rows, PRESETS[opts.preset].num_points, opts)
+    after, _ = predict_rows(trained, bank, train_rows, PRESETS[opts.preset].num_points, opts)
     changed = [k for k, v in initial.state_dict().items() if not torch.equal(v, trained.state_dict()[k])]
     assert len(changed) > 0.9 * len(initial.state_dict())
     assert after < before
@@ -42,13 +47,18 @@ def test_one_epoch_changes_the_weights_and_lowers_the_loss(bank: SampleBank, dat
     assert (tmp_path / "run" / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_resume_gives_the_weights_of_an_uninterrupted_run(bank: SampleBank, dataset_url: str, tmp_path: Path) -> None:
-    straight = train(options(dataset_url, tmp_path / "straight", epochs=2), bank=bank)
-    train(options(dataset_url, tmp_path / "resumed", epochs=1), bank=bank)
-    resumed = train(options(dataset_url, tmp_path / "resumed", epochs=2, resume=True), bank=bank)
+@pytest.mark.parametrize("target", TARGETS)
+def test_resume_gives_the_weights_of_an_uninterrupted_run(
+    target: str, bank: SampleBank, dataset_url: str, tmp_path: Path
+) -> None:
+    straight = train(options(dataset_url, tmp_path / "straight", epochs=2, target=target), bank=bank)
+    train(options(dataset_url, tmp_path / "resumed", epochs=1, target=target), bank=bank)
+    resumed = train(options(dataset_url, tmp_path / "resumed", epochs=2, resume=True, target=target), bank=bank)
     a = load_checkpoint(tmp_path / "straight" / "last.pt")
     b = load_checkpoint(tmp_path / "resumed" / "last.pt")
-    assert a.epoch == b.epoch == 2
+    assert a.epoch == b.epoch == 2 and a.target == b.target == target
+    assert a.tuned_threshold == b.tuned_threshold == straight.history[-1]["tuned_threshold"]
+    assert straight.best_metric == "cover_f1" and all(row["train_loss"] > 0 for row in straight.history)
     for key, value in a.data["model"].items():
         assert torch.equal(value, b.data["model"][key]), key
     timing = ("seconds", "train_samples_per_s", "loader_samples_per_s")
@@ -65,6 +75,10 @@ def test_an_existing_run_is_not_overwritten_and_resume_needs_the_same_options(
         train(options(dataset_url, tmp_path / "run"), bank=bank)
     with pytest.raises(CheckpointError, match="other options"):
         train(options(dataset_url, tmp_path / "run", epochs=2, resume=True, lambda_=2.0), bank=bank)
+    with pytest.raises(CheckpointError, match="other options"):
+        train(options(dataset_url, tmp_path / "run", epochs=2, resume=True, target="support"), bank=bank)
+    with pytest.raises(CheckpointError, match="other options"):
+        train(options(dataset_url, tmp_path / "run", epochs=2, resume=True, max_objects=2), bank=bank)
     with pytest.raises(DataError, match="nothing to resume"):
         train(options(dataset_url, tmp_path / "fresh", resume=True), bank=bank)
 
@@ -94,3 +108,67 @@ def test_checkpoints_that_do_not_fit_or_are_damaged(bank: SampleBank, dataset_ur
         load_checkpoint(code)
     with pytest.raises(CheckpointError, match="not found"):
         load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_the_tuned_threshold_and_default_decoding_reach_the_planner(
+    bank: SampleBank, dataset_url: str, tmp_path: Path
+) -> None:
+    opts = options(dataset_url, tmp_path / "run", target="marginal", split="objects", val_fraction=0.34)
+    outcome = train(opts, bank=bank)
+    checkpoint = load_checkpoint(tmp_path / "run" / "best.pt")
+    assert checkpoint.version == 2 and checkpoint.target == "marginal" and checkpoint.decoding == "tuned"
+    assert checkpoint.training["val_samples"] + checkpoint.training["train_samples"] == len(bank)
+    # The stored threshold is the one tuned on the run's validation samples with these very weights.
+    _, val_rows = run_rows(bank, opts)
+    _, probabilities = predict_rows(checkpoint.network(), bank, val_rows, checkpoint.num_points, opts)
+    covers = bank.covers.take(val_rows) if bank.covers is not None else None
+    tuned, score = tune_threshold(probabilities, bank.view_state[val_rows], bank.labels[val_rows], covers)
+    assert checkpoint.tuned_threshold == tuned and outcome.history[0]["tuned_f1"] == pytest.approx(score)
+    scorer = load_scorer(tmp_path / "run" / "best.pt")
+    assert scorer.decodings == ("threshold", "tuned", "size", "topk")
+    p = np.linspace(0.0, 0.93, 32)  # view v scores 0.03 v; view 31 is already taken
+    state = np.zeros(32, dtype=np.float32)
+    state[31] = 1.0
+    expected = [v for v in range(31) if p[v] > tuned]
+    assert np.flatnonzero(scorer.select_views(p, state, None)).tolist() == expected
+    assert np.flatnonzero(scorer.select_views(p, state, "tuned")).tolist() == expected
+    assert np.flatnonzero(scorer.select_views(p, state, "threshold")).tolist() == list(range(17, 31))
+    # size: free mass 0.03 * (0 + ... + 30) = 13.95 -> 14 views, the 14 best free ones
+    assert np.flatnonzero(scorer.select_views(p, state, "size")).tolist() == list(range(17, 31))
+    assert np.flatnonzero(scorer.select_views(p, state, "topk=2")).tolist() == [29, 30]
+    with pytest.raises(ValueError, match="unknown decoding 'nope'; choose threshold, tuned, size, topk"):
+        scorer.select_views(p, state, "nope")
+
+
+def test_a_version_1_checkpoint_plans_with_the_papers_rule_and_is_not_resumed(
+    bank: SampleBank, dataset_url: str, tmp_path: Path
+) -> None:
+    train(options(dataset_url, tmp_path / "run"), bank=bank)
+    data = load_checkpoint(tmp_path / "run" / "last.pt").data
+    old = {k: v for k, v in data.items() if k not in ("decoding", "tuned_threshold")} | {"version": 1}
+    torch.save(old, tmp_path / "run" / "last.pt")
+    checkpoint = load_checkpoint(tmp_path / "run" / "last.pt")
+    assert (checkpoint.decoding, checkpoint.tuned_threshold) == ("threshold", None)
+    scorer = load_scorer(tmp_path / "run" / "last.pt")
+    assert scorer.decodings == ("threshold", "size", "topk")
+    p = np.array([0.2, 0.7, 0.51, 0.9])
+    assert scorer.select_views(p, np.array([0, 0, 0, 1], dtype=np.float32), None).tolist() == [0, 1, 1, 0]
+    with pytest.raises(ValueError, match="no tuned threshold"):
+        scorer.select_views(p, np.zeros(4, dtype=np.float32), "tuned")
+    with pytest.raises(CheckpointError, match="older osvp"):
+        train(options(dataset_url, tmp_path / "run", epochs=2, resume=True), bank=bank)
+
+
+def test_a_version_1_dataset_trains_on_labels_and_refuses_the_other_targets(
+    v1_dataset_url: str, tmp_path: Path
+) -> None:
+    old = SampleBank.load(v1_dataset_url)
+    outcome = train(options(v1_dataset_url, tmp_path / "run"), bank=old)
+    assert outcome.best_metric == "f1" and "cover_f1" not in outcome.history[0]
+    assert 0.05 <= outcome.history[0]["tuned_threshold"] <= 0.95
+    header = (tmp_path / "run" / "metrics.csv").read_text().splitlines()[0].split(",")
+    assert "cover_f1" in header and "size_views" in header  # empty cells where there are no covers
+    for target in AMBIGUITY_TARGETS:
+        with pytest.raises(DataError, match=f"target '{target}' needs every sample's minimum covers") as info:
+            train(options(v1_dataset_url, tmp_path / target, target=target), bank=old)
+        assert "datagen shards relabel" in str(info.value) and not (tmp_path / target).exists()

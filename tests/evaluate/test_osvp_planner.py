@@ -35,21 +35,28 @@ def checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder / "run" / "best.pt"
 
 
-def test_a_trained_checkpoint_plans_the_views_it_scores_above_one_half(checkpoint: Path, tmp_path: Path) -> None:
+def test_a_trained_checkpoint_plans_the_views_its_decodings_choose(checkpoint: Path, tmp_path: Path) -> None:
+    """`osvp+threshold:FILE` takes the views scored above one half (the paper's rule); plain `osvp:FILE`
+    takes what the checkpoint's default decoding selects from the same probabilities."""
     objects = tmp_path / "objects.txt"
     objects.write_text("builtin:capsule\n")
     cfg = config()
     prepared = prepare_object(read_objects_file(objects).objects[0], cfg)
     scene = build_scene(prepared, 0, cfg, build_view_space(cfg.view_space))
     situation = Situation(RefinedScene(scene, make_refiner(cfg), cfg), 3)
-    planner = make_planner(f"osvp:{checkpoint}")
-    assert planner.name == f"osvp:{checkpoint}" and planner.uses_refinement
+    planner = make_planner(f"osvp+threshold:{checkpoint}")
+    assert planner.name == f"osvp+threshold:{checkpoint}" and planner.uses_refinement
     plan = planner.plan(situation)
     assert plan.probabilities is not None and plan.probabilities.shape == (32,)
     expected = tuple(int(v) for v in np.flatnonzero(plan.probabilities > CHOICE_THRESHOLD) if v != 3)
     assert plan.views == expected
-    again = make_planner(f"osvp:{checkpoint}").plan(situation)
+    default = make_planner(f"osvp:{checkpoint}")
+    again = default.plan(situation)
     assert np.array_equal(again.probabilities, plan.probabilities)
+    state = np.zeros(32, dtype=np.float32)
+    state[3] = 1.0
+    chosen = default.scorer.select_views(again.probabilities, state, None)  # type: ignore[attr-defined]
+    assert again.views == tuple(int(v) for v in np.flatnonzero(chosen))
     episode = run_episode(planner, situation)
     assert episode.visited[0] == 3 and episode.planner == planner.name and episode.refiner == "none"
 

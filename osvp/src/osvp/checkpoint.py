@@ -4,6 +4,11 @@ A checkpoint holds the network's preset and view count, the point count it was t
 training options and history, the dataset it came from, and the model and optimiser states. It is
 read with ``torch.load(weights_only=True)``, so a file cannot run code; anything else wrong with it
 is a `CheckpointError` naming the file and the fix.
+
+Version 2 adds how the planner turns probabilities into views: ``decoding`` (its default, see
+`osvp.decoding`) and ``tuned_threshold`` (chosen on the run's validation samples); the training
+target is in the stored options. A version-1 checkpoint still loads and plans (target ``label``,
+the paper's 0.5 rule, no tuned threshold), but a run is never resumed from one.
 """
 
 from __future__ import annotations
@@ -21,7 +26,8 @@ from osvp.network import NetworkPreset, OSVPNetwork, build_network
 from schemas.errors import DatagenError
 
 FORMAT = "osvp-checkpoint"
-VERSION = 1
+VERSION = 2
+READABLE_VERSIONS = (1, 2)
 REQUIRED = ("format", "version", "preset", "num_views", "num_points", "source", "model", "epoch", "training")
 
 
@@ -59,6 +65,30 @@ class Checkpoint:
     def training(self) -> dict[str, Any]:
         """The options the run was started with, the dataset's identity and the history."""
         return dict(self.data["training"])
+
+    @property
+    def version(self) -> int:
+        return int(self.data["version"])
+
+    @property
+    def target(self) -> str:
+        """The training target (`osvp.loss.TARGETS`); ``label`` before version 2."""
+        return str(self.training["options"].get("target", "label"))
+
+    @property
+    def tuned_threshold(self) -> float | None:
+        """The ``tuned`` decoding's threshold, chosen on the run's validation samples; None before version 2."""
+        value = self.data.get("tuned_threshold")
+        return None if value is None else float(value)
+
+    @property
+    def decoding(self) -> str:
+        """The default decoding: the stored one, else ``tuned`` when there is a tuned threshold, else
+        the paper's ``threshold``."""
+        stored = self.data.get("decoding")
+        if stored is not None:
+            return str(stored)
+        return "tuned" if self.tuned_threshold is not None else "threshold"
 
     def network(self, device: str | torch.device = "cpu") -> OSVPNetwork:
         """The trained network, in eval mode."""
@@ -104,9 +134,10 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
         raise CheckpointError(f"{path}: not a readable osvp checkpoint ({reason}); re-run `osvp train`") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not an osvp checkpoint (no '{FORMAT}' marker); give a file from `osvp train`")
-    if data.get("version") != VERSION:
+    if data.get("version") not in READABLE_VERSIONS:
         version = data.get("version")
-        raise CheckpointError(f"{path}: checkpoint version {version} is not {VERSION}; retrain with this osvp")
+        known = ", ".join(str(v) for v in READABLE_VERSIONS)
+        raise CheckpointError(f"{path}: checkpoint version {version} is not one of {known}; retrain with this osvp")
     missing = [key for key in REQUIRED if key not in data]
     if missing:
         raise CheckpointError(f"{path}: checkpoint lacks {', '.join(missing)}; it is damaged, re-run `osvp train`")

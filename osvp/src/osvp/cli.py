@@ -16,17 +16,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from osvp.checkpoint import load_checkpoint
-from osvp.data import DataError, SampleBank, split_rows
-from osvp.loss import DEFAULT_LAMBDA
-from osvp.metrics import SetMetrics
+from osvp.checkpoint import Checkpoint, load_checkpoint
+from osvp.data import DataError, SampleBank
+from osvp.decoding import Decoding, parse_decoding
+from osvp.loss import DEFAULT_LAMBDA, TARGETS
+from osvp.metrics import decoded_metrics
 from osvp.network import PRESETS
 from osvp.prior import ViewStatePrior
-from osvp.train import EpochReport, TrainOptions, evaluate_rows, train
+from osvp.train import EpochReport, TrainOptions, covers_needed, predict_rows, run_rows, train
 from schemas.errors import DatagenError
 
 PAPER_LAMBDAS = (0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
 EXIT_USER_ERROR = 2
+EVAL_DECODINGS = ("threshold", "tuned", "size")
+PRIOR_DECODINGS = ("threshold", "size")
+SELECTION = {"cover_f1": "F1 (against the nearest minimum cover, p > 0.5)", "f1": "F1 (label bits, p > 0.5)"}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -58,17 +62,45 @@ def _parser() -> argparse.ArgumentParser:
         sub.add_argument("--epochs", type=int, default=30)
         sub.add_argument("--lr", type=float, default=None, help="AdamW learning rate (default: the preset's)")
         sub.add_argument("--seed", type=int, default=0)
-        sub.add_argument("--split", choices=("samples", "objects"), default="samples")
+        sub.add_argument(
+            "--split",
+            choices=("samples", "objects"),
+            default="samples",
+            help="validation by held-out samples (the paper's) or held-out objects (recommended for learning curves)",
+        )
         sub.add_argument("--val-fraction", type=float, default=0.2)
         sub.add_argument("--source", choices=("points", "observed"), default="points")
         sub.add_argument("--resume", action="store_true", help="continue the run in --out from its last epoch")
+        sub.add_argument(
+            "--target",
+            choices=TARGETS,
+            default="label",
+            help="loss: the stored label's SCLoss (the paper's), or, with a version-2 dataset, the minimum covers' "
+            "marginals, the nearest minimum cover, or the label without punishing other covers' views",
+        )
+        sub.add_argument(
+            "--max-objects",
+            type=int,
+            default=None,
+            help="train on this many of the training objects (seeded and nested: the first 10 of 20 are the 10)",
+        )
+        sub.add_argument(
+            "--sample-fraction",
+            type=float,
+            default=1.0,
+            help="train on this seeded, nested fraction of the training samples, in (0, 1]; validation is unchanged",
+        )
 
-    train_cmd = commands.add_parser("train", help="train a planner; best.pt holds the best validation F1")
+    train_cmd = commands.add_parser(
+        "train", help="train a planner; best.pt holds the best validation F1 (nearest minimum cover when known)"
+    )
     training(train_cmd)
     train_cmd.add_argument("--lambda", dest="lambda_", type=float, default=DEFAULT_LAMBDA, help="SCLoss weight of 1s")
     train_cmd.set_defaults(run=_train)
 
-    eval_cmd = commands.add_parser("eval", help="precision, recall, F1 and exact-set accuracy of a checkpoint")
+    eval_cmd = commands.add_parser(
+        "eval", help="precision, recall, F1, nearest-cover F1, covers-U share and views of a checkpoint, per decoding"
+    )
     common(eval_cmd)
     eval_cmd.add_argument("--checkpoint", type=Path, required=True)
     eval_cmd.add_argument(
@@ -79,6 +111,13 @@ def _parser() -> argparse.ArgumentParser:
         "is drawn from those)",
     )
     eval_cmd.add_argument("--points", type=int, default=None, help="points per cloud (must be the checkpoint's)")
+    eval_cmd.add_argument(
+        "--decoding",
+        action="append",
+        default=None,
+        help="a decoding to report (repeatable: threshold, threshold=T, tuned, size, topk=K; "
+        "default: threshold, tuned and size)",
+    )
     eval_cmd.add_argument("--json", action="store_true")
     eval_cmd.set_defaults(run=_eval)
 
@@ -104,12 +143,15 @@ def _options(args: argparse.Namespace, out: Path, lambda_: float, resume: bool) 
         val_fraction=args.val_fraction,
         source=args.source,
         resume=resume,
+        target=args.target,
+        max_objects=args.max_objects,
+        sample_fraction=args.sample_fraction,
     )
 
 
-def _load(url: str, source: str = "points") -> SampleBank:
+def _load(url: str, source: str = "points", covers_for: str | None = None) -> SampleBank:
     started = time.perf_counter()
-    bank = SampleBank.load(url, source, progress=_bar("reading samples"))  # type: ignore[arg-type]
+    bank = SampleBank.load(url, source, progress=_bar("reading samples"), covers_for=covers_for)  # type: ignore[arg-type]
     seconds = time.perf_counter() - started
     _clear()
     _note(f"read {len(bank)} samples in {seconds:.1f} s ({len(bank) / max(seconds, 1e-9):.0f} samples/s)")
@@ -119,49 +161,95 @@ def _load(url: str, source: str = "points") -> SampleBank:
 def _train(args: argparse.Namespace) -> int:
     options = _options(args, args.out, args.lambda_, args.resume)
     options.check()
-    bank = _load(args.data, args.source)
+    bank = _load(args.data, args.source, covers_needed(options.target))
     outcome = train(options, on_epoch=_epoch_line, on_batch=_bar("training"), bank=bank)
-    _note(f"best validation F1 {outcome.best_f1:.4f} at epoch {outcome.best_epoch}; {args.out / 'best.pt'}")
+    figure = SELECTION[outcome.best_metric]
+    _note(f"best validation {figure} {outcome.best_score:.4f} at epoch {outcome.best_epoch}; {args.out / 'best.pt'}")
     return 0
 
 
 def _eval(args: argparse.Namespace) -> int:
     checkpoint = load_checkpoint(args.checkpoint)
-    bank = _load(args.data, checkpoint.source)
+    decodings = _decodings(args.decoding, checkpoint)
+    bank = _load(args.data, checkpoint.source, covers_needed(checkpoint.target))
     checkpoint.require(bank.num_views, args.points)
-    stored = checkpoint.training["options"]
     same_data = checkpoint.training["config_hash"] == bank.config_hash
     if args.split != "all" and not same_data:
         raise DataError(
             f"--split {args.split} needs the dataset {checkpoint.path} was trained on; give it or use --split all"
         )
-    train_rows, val_rows = split_rows(bank, stored["split"], stored["val_fraction"], stored["seed"])
-    rows = {"all": np.arange(len(bank), dtype=np.int64), "train": train_rows, "val": val_rows}[args.split]
-    options = TrainOptions(
+    options = _stored_options(checkpoint, args)
+    everything = np.arange(len(bank), dtype=np.int64)
+    # The run's own rows on its dataset; on another one (--split all only) every sample, also for the prior.
+    train_rows, val_rows = run_rows(bank, options) if same_data else (everything, everything)
+    rows = {"all": everything, "train": train_rows, "val": val_rows}[args.split]
+    loss, probabilities = predict_rows(checkpoint.network(args.device), bank, rows, checkpoint.num_points, options)
+    covers = bank.covers.take(rows) if bank.covers is not None else None
+    state, labels = bank.view_state[rows], bank.labels[rows]
+    network = {d.spec: decoded_metrics(probabilities, state, labels, d, covers).as_dict() for d in decodings}
+    prior = ViewStatePrior.fit(bank.view_state[train_rows], bank.labels[train_rows], options.lambda_)
+    guessed = prior.probabilities(state)
+    baseline = {name: decoded_metrics(guessed, state, labels, name, covers).as_dict() for name in PRIOR_DECODINGS}
+    result = {
+        "samples": len(rows),
+        "loss": loss,
+        "target": checkpoint.target,
+        "default_decoding": checkpoint.decoding,
+        "tuned_threshold": checkpoint.tuned_threshold,
+        "decodings": network,
+        "view_state_prior": baseline,
+    }
+    if args.json:
+        print(json.dumps(result, indent=1))
+        return 0
+    print(
+        "| planner | decoding | samples | precision | recall | F1 | exact set | nearest-cover F1 | covers U | views "
+        f"| label views | {checkpoint.target} loss |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
+    )
+    tuned = f"tuned ({checkpoint.tuned_threshold:.2f})" if checkpoint.tuned_threshold is not None else "tuned"
+    named = {"threshold": "threshold 0.5", "tuned": tuned}
+    table = [("network", spec, scores, f"{loss:.4f}") for spec, scores in network.items()]
+    table += [("view-state prior", spec, scores, "-") for spec, scores in baseline.items()]
+    for planner, spec, scores, value in table:
+        print(
+            f"| {planner} | {named.get(spec, spec)} | {len(rows)} | {scores['precision']:.4f} | {scores['recall']:.4f} "
+            f"| {scores['f1']:.4f} | {scores['exact_accuracy']:.4f} | {_maybe(scores, 'cover_f1')} "
+            f"| {_maybe(scores, 'covers_u')} | {scores['views']:.2f} | {scores['label_views']:.2f} | {value} |"
+        )
+    return 0
+
+
+def _decodings(asked: list[str] | None, checkpoint: Checkpoint) -> list[Decoding]:
+    """The decodings ``osvp eval`` reports: those asked for, else threshold, tuned (when the
+    checkpoint has a tuned threshold) and size."""
+    names = asked or [n for n in EVAL_DECODINGS if n != "tuned" or checkpoint.tuned_threshold is not None]
+    try:
+        return [parse_decoding(name, checkpoint.tuned_threshold) for name in names]
+    except ValueError as exc:
+        raise DataError(f"--decoding: {exc}") from None
+
+
+def _stored_options(checkpoint: Checkpoint, args: argparse.Namespace) -> TrainOptions:
+    """The run's options that decide its rows, resampling and loss (defaults for older checkpoints)."""
+    stored = checkpoint.training["options"]
+    return TrainOptions(
         data=args.data,
         out=Path("."),
         lambda_=float(stored["lambda_"]),
         batch_size=args.batch_size,
         device=args.device,
         seed=int(stored["seed"]),
+        split=stored["split"],
+        val_fraction=float(stored["val_fraction"]),
+        target=checkpoint.target,
+        max_objects=stored.get("max_objects"),
+        sample_fraction=float(stored.get("sample_fraction", 1.0)),
     )
-    loss, metrics = evaluate_rows(checkpoint.network(args.device), bank, rows, checkpoint.num_points, options)
-    # The prior is fitted on the run's own training samples when this is its dataset, else on all.
-    fitted_on = train_rows if same_data else np.arange(len(bank), dtype=np.int64)
-    prior = ViewStatePrior.fit(bank.view_state[fitted_on], bank.labels[fitted_on], options.lambda_)
-    baseline = SetMetrics()
-    baseline.add(torch.from_numpy(prior.probabilities(bank.view_state[rows])), torch.from_numpy(bank.labels[rows]))
-    result = {"samples": len(rows), "loss": loss, **metrics.as_dict(), "view_state_prior": baseline.as_dict()}
-    if args.json:
-        print(json.dumps(result, indent=1))
-    else:
-        print("| planner | samples | precision | recall | F1 | exact set | SCLoss |\n|---|---|---|---|---|---|---|")
-        for name, scores, value in (("network", metrics, f"{loss:.4f}"), ("view-state prior", baseline, "-")):
-            print(
-                f"| {name} | {len(rows)} | {scores.precision:.4f} | {scores.recall:.4f} | {scores.f1:.4f} | "
-                f"{scores.exact_accuracy:.4f} | {value} |"
-            )
-    return 0
+
+
+def _maybe(scores: dict[str, float], key: str) -> str:
+    """A figure only version-2 data has, or '-'."""
+    return f"{scores[key]:.4f}" if key in scores else "-"
 
 
 def _sweep(args: argparse.Namespace) -> int:
@@ -169,7 +257,7 @@ def _sweep(args: argparse.Namespace) -> int:
         lambdas = [float(v) for v in args.lambdas.split(",")]
     except ValueError:
         raise DataError(f"--lambdas {args.lambdas!r}: give numbers separated by commas, e.g. 0.75,1.25") from None
-    bank = _load(args.data, args.source)
+    bank = _load(args.data, args.source, covers_needed(args.target))
     rows = []
     for lambda_ in lambdas:
         out = args.out / f"lambda-{lambda_:g}"
@@ -188,10 +276,14 @@ def _sweep(args: argparse.Namespace) -> int:
 
 def _epoch_line(report: EpochReport) -> None:
     row = report.row
+    covers = f" cover F1 {row['cover_f1']:.3f} covers U {row['covers_u']:.3f}" if "cover_f1" in row else ""
+    size = f" cover F1 {row['size_cover_f1']:.3f}" if "size_cover_f1" in row else f" F1 {row['size_f1']:.3f}"
     _clear()
     _note(
         f"epoch {report.epoch}/{report.epochs}: loss {row['train_loss']:.4f} val {row['val_loss']:.4f} "
-        f"P {row['precision']:.3f} R {row['recall']:.3f} F1 {row['f1']:.3f} exact {row['exact_accuracy']:.3f} "
+        f"P {row['precision']:.3f} R {row['recall']:.3f} F1 {row['f1']:.3f} exact {row['exact_accuracy']:.3f}"
+        f"{covers} views {row['views']:.2f}/{row['label_views']:.2f}; size:{size} views {row['size_views']:.2f}; "
+        f"tuned {row['tuned_threshold']:.2f}: {row['tuned_f1']:.3f}; "
         f"{row['seconds']:.0f} s, {row['train_samples_per_s']:.0f} samples/s"
         f" (loader {row['loader_samples_per_s']:.0f}/s)" + (" *best" if report.best else "")
     )

@@ -1,28 +1,134 @@
-"""SCLoss, the paper's set-covering loss (AIR-OSVP equation 3).
+"""SCLoss, the paper's set-covering loss (AIR-OSVP equation 3), and targets that allow for ties.
 
 Per view, the binary cross entropy of the predicted probability against the label bit; the
 label's 1s weigh ``lambda_`` times its 0s (views that must be taken matter more than views that
 need not), averaged over views and over the batch. The paper picks lambda = 1.25 for the best F1.
-Computed from logits (``binary_cross_entropy_with_logits``), which is the same value without the
-overflow of log(sigmoid) near 0 and 1. The authors' code sums instead of averaging; the scale only
-changes the effective learning rate.
+Computed from logits (softplus / ``binary_cross_entropy_with_logits``), which is the same value
+without the overflow of log(sigmoid) near 0 and 1. The authors' code sums instead of averaging;
+the scale only changes the effective learning rate.
+
+A stored label is one arbitrary minimum cover among many equally good ones (median 9), so SCLoss
+on it punishes a network for predicting another, equally good cover. The other targets
+(`TARGETS`, chosen with ``osvp train --target``) use what a version-2 dataset keeps about the
+ties: the per-view marginals over the minimum covers, the covers themselves, or their support.
 """
 
 from __future__ import annotations
+
+from typing import Protocol
 
 import torch
 import torch.nn.functional as F
 
 DEFAULT_LAMBDA = 1.25
 
+TARGETS = ("label", "marginal", "mincover", "support")
+AMBIGUITY_TARGETS = ("marginal", "mincover", "support")
+"""Targets that need every sample's minimum covers (schema version 2)."""
 
-def sc_loss(logits: torch.Tensor, labels: torch.Tensor, lambda_: float = DEFAULT_LAMBDA) -> torch.Tensor:
-    """Mean over the batch of SCLoss = -(1/|V|) sum_i [(1 - g_i) CE_i + lambda g_i CE_i]."""
-    if logits.shape != labels.shape:
-        raise ValueError(f"logits {tuple(logits.shape)} and labels {tuple(labels.shape)} must have one shape")
+
+def _check(logits: torch.Tensor, targets: torch.Tensor, lambda_: float) -> None:
+    if logits.shape != targets.shape:
+        raise ValueError(f"logits {tuple(logits.shape)} and labels {tuple(targets.shape)} must have one shape")
     if lambda_ <= 0:
         raise ValueError(f"lambda = {lambda_} must be positive")
+
+
+def sc_loss(logits: torch.Tensor, labels: torch.Tensor, lambda_: float = DEFAULT_LAMBDA) -> torch.Tensor:
+    """Target ``label``: mean over the batch of SCLoss = -(1/|V|) sum_i [(1 - g_i) CE_i + lambda g_i CE_i].
+
+    Rewards predicting exactly the stored label, the lexicographically smallest minimum cover."""
+    _check(logits, labels, lambda_)
     labels = labels.to(logits.dtype)
     per_view = F.binary_cross_entropy_with_logits(logits, labels, reduction="none")
     weights = 1.0 + (lambda_ - 1.0) * labels
     return (weights * per_view).mean()
+
+
+def marginal_loss(logits: torch.Tensor, marginals: torch.Tensor, lambda_: float = DEFAULT_LAMBDA) -> torch.Tensor:
+    """Target ``marginal``: SCLoss with soft targets q, lambda q (-log p) + (1 - q)(-log(1 - p)),
+    averaged over views and samples.
+
+    Rewards each view's probability following how often it is in a minimum cover: a view every
+    cover needs is pushed to 1, one no cover uses to 0, and an interchangeable view sits between,
+    so no single tie-break is learnt. With 0/1 marginals it is SCLoss."""
+    _check(logits, marginals, lambda_)
+    q = marginals.to(logits.dtype)
+    return (lambda_ * q * F.softplus(-logits) + (1.0 - q) * F.softplus(logits)).mean()
+
+
+def mincover_loss(
+    logits: torch.Tensor, covers: torch.Tensor, cover_mask: torch.Tensor, lambda_: float = DEFAULT_LAMBDA
+) -> torch.Tensor:
+    """Target ``mincover``: per sample the least SCLoss over its listed minimum covers (``covers``
+    (B, C, n) 0/1, ``cover_mask`` (B, C) True for real ones), averaged over the batch.
+
+    Set-prediction matching: rewards predicting any one minimum cover, whichever the network finds
+    easiest; only the cover it is closest to receives gradient."""
+    if covers.dim() != 3 or covers.shape[0] != logits.shape[0] or covers.shape[2] != logits.shape[1]:
+        shapes = f"covers {tuple(covers.shape)}, logits {tuple(logits.shape)}"
+        raise ValueError(f"{shapes}: covers must be (batch, covers, views) for (batch, views) logits")
+    if cover_mask.shape != covers.shape[:2] or not bool(cover_mask.any(dim=1).all()):
+        raise ValueError("cover_mask must be (batch, covers) with at least one cover per sample")
+    if lambda_ <= 0:
+        raise ValueError(f"lambda = {lambda_} must be positive")
+    g = covers.to(logits.dtype)
+    chosen, skipped = F.softplus(-logits), F.softplus(logits)  # -log p, -log(1 - p)
+    # sum_v [lambda g_v (-log p_v) + (1 - g_v)(-log(1 - p_v))] = sum_v skipped_v + g . (lambda chosen - skipped)
+    per_cover = (skipped.sum(dim=1, keepdim=True) + torch.einsum("bcn,bn->bc", g, lambda_ * chosen - skipped)) / (
+        logits.shape[1]
+    )
+    per_cover = per_cover.masked_fill(~cover_mask.to(torch.bool), float("inf"))
+    return per_cover.min(dim=1).values.mean()
+
+
+def support_loss(
+    logits: torch.Tensor, labels: torch.Tensor, support: torch.Tensor, lambda_: float = DEFAULT_LAMBDA
+) -> torch.Tensor:
+    """Target ``support``: SCLoss on the stored label, with weight 0 on the views of other minimum
+    covers (support minus label), still averaged over all views.
+
+    Rewards the label's views and punishes views no minimum cover uses, but never a view that
+    would belong to an equally good cover."""
+    _check(logits, labels, lambda_)
+    _check(logits, support, lambda_)
+    labels = labels.to(logits.dtype)
+    per_view = F.binary_cross_entropy_with_logits(logits, labels, reduction="none")
+    excused = (support > 0.5) & (labels < 0.5)
+    weights = (1.0 + (lambda_ - 1.0) * labels).masked_fill(excused, 0.0)
+    return (weights * per_view).mean()
+
+
+class TargetBatch(Protocol):
+    """What a target reads from a batch (`osvp.data.Batch`)."""
+
+    @property
+    def labels(self) -> torch.Tensor: ...
+    @property
+    def marginals(self) -> torch.Tensor | None: ...
+    @property
+    def support(self) -> torch.Tensor | None: ...
+    @property
+    def covers(self) -> torch.Tensor | None: ...
+    @property
+    def cover_mask(self) -> torch.Tensor | None: ...
+
+
+def target_loss(target: str, logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
+    """The loss of ``target`` (one of `TARGETS`) on a batch, on the logits' device."""
+
+    def need(value: torch.Tensor | None, what: str) -> torch.Tensor:
+        if value is None:
+            raise ValueError(f"target {target!r} needs the batch's {what} (a version-2 dataset)")
+        return value.to(logits.device)
+
+    labels = batch.labels.to(logits.device)
+    if target == "label":
+        return sc_loss(logits, labels, lambda_)
+    if target == "marginal":
+        return marginal_loss(logits, need(batch.marginals, "marginals"), lambda_)
+    if target == "mincover":
+        return mincover_loss(logits, need(batch.covers, "covers"), need(batch.cover_mask, "cover mask"), lambda_)
+    if target == "support":
+        return support_loss(logits, labels, need(batch.support, "support"), lambda_)
+    raise ValueError(f"unknown target {target!r}; choose {', '.join(TARGETS)}")

@@ -1,8 +1,10 @@
 """A trained checkpoint as a view scorer: what ``datagen evaluate --planner osvp:FILE`` loads.
 
 The scorer takes what a dataset sample holds (the cloud's key centres in metres and the view state)
-and returns one probability per view; ``datagen`` keeps those above 0.5. The cloud is resampled to
-the checkpoint's point count from a fixed stream, so a scene always gets the same answer.
+and returns one probability per view. The cloud is resampled to the checkpoint's point count from a
+fixed stream, so a scene always gets the same answer. It is a ``DecodingScorer`` for ``datagen``:
+`CheckpointScorer.select_views` turns the probabilities into views with the checkpoint's default
+decoding (``osvp:FILE``) or a named one (``osvp+size:FILE``, ``osvp+threshold=0.3:FILE``).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import numpy.typing as npt
 import torch
 
 from osvp.checkpoint import Checkpoint, load_checkpoint
+from osvp.decoding import DECODINGS, parse_decoding, select_views
 
 PLANNING_SEED = 0
 
@@ -27,6 +30,12 @@ class CheckpointScorer:
         self.network = checkpoint.network(device)
         self.source = checkpoint.source
         """Which cloud the network was trained on: 'points' (refined) or 'observed' (sparse)."""
+        self.tuned_threshold = checkpoint.tuned_threshold
+        self.default_decoding = checkpoint.decoding
+        self.decodings: tuple[str, ...] = tuple(
+            name for name in DECODINGS if name != "tuned" or self.tuned_threshold is not None
+        )
+        """Decoding names this checkpoint accepts (``tuned`` only when it holds a tuned threshold)."""
 
     def view_probabilities(
         self, points: npt.NDArray[np.float32], view_state: npt.NDArray[np.float32]
@@ -45,6 +54,15 @@ class CheckpointScorer:
                 torch.from_numpy(cloud)[None].to(self.device), torch.from_numpy(state)[None].to(self.device)
             )
         return torch.sigmoid(logits)[0].double().cpu().numpy()
+
+    def select_views(
+        self, probabilities: npt.NDArray[np.float64], view_state: npt.NDArray[np.float32], decoding: str | None = None
+    ) -> npt.NDArray[np.bool_]:
+        """One bool per view, True = take it (never a view of the view state); ``decoding`` None is the
+        checkpoint's default. An unknown or malformed decoding is a one-line `ValueError`."""
+        chosen = parse_decoding(decoding or self.default_decoding, self.tuned_threshold)
+        p = np.asarray(probabilities, dtype=np.float64).reshape(-1)
+        return select_views(p, np.asarray(view_state, dtype=np.float32).reshape(-1), chosen)
 
 
 def load_scorer(path: str | Path, device: str = "cpu") -> CheckpointScorer:

@@ -1,11 +1,18 @@
-"""Training: the OSVP network on a dataset's samples with SCLoss, validated every epoch.
+"""Training: the OSVP network on a dataset's samples with a target loss, validated every epoch.
 
 Deterministic on CPU for a fixed seed and thread count: the network is initialised inside a forked
 torch RNG seeded from ``seed`` (never the global one), each epoch's dropout draws come from a fork
 seeded by (seed, epoch), the batch order from a numpy stream (seed, epoch), and each sample's points
 from `SampleBank.batch`'s own stream. So a run resumed from ``last.pt`` (written after every epoch)
-continues with exactly the weights an uninterrupted run would have. ``best.pt`` is the epoch with
-the best validation F1 (the authors' selection reset every epoch; ours does not).
+continues with exactly the weights an uninterrupted run would have.
+
+Every epoch validates on the same rows (``max_objects`` and ``sample_fraction`` only thin the
+training side) with two decodings, the paper's 0.5 rule and ``size``, and picks the ``tuned``
+threshold on those rows (`osvp.metrics.tune_threshold`), so each checkpoint carries the threshold
+of its own weights. ``best.pt`` is the epoch with the best validation F1 at threshold 0.5 against
+the nearest minimum cover when the dataset has covers, else against the label bits (a fixed rule:
+selecting by the tuned threshold's own F1 would pick the epoch on the rows that tuned it). The
+authors' selection reset every epoch; ours does not.
 """
 
 from __future__ import annotations
@@ -22,11 +29,22 @@ import numpy as np
 import numpy.typing as npt
 import torch
 
+from osvp.checkpoint import VERSION as CHECKPOINT_VERSION
 from osvp.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from osvp.covers import CoverBank
 from osvp.curves import draw_curves, write_metrics_csv
-from osvp.data import DataError, SampleBank, Split, split_rows
-from osvp.loss import DEFAULT_LAMBDA, sc_loss
-from osvp.metrics import SetMetrics
+from osvp.data import (
+    DataError,
+    SampleBank,
+    Split,
+    check_sample_fraction,
+    require_covers,
+    split_rows,
+    training_subset,
+)
+from osvp.decoding import PAPER_THRESHOLD, Decoding
+from osvp.loss import AMBIGUITY_TARGETS, DEFAULT_LAMBDA, TARGETS, target_loss
+from osvp.metrics import decoded_metrics, tune_threshold
 from osvp.network import PRESETS, OSVPNetwork, build_network
 
 LEARNING_RATES = {"paper": 1e-4, "small": 1e-3}
@@ -37,6 +55,9 @@ VALIDATION_EPOCH = 2**32 - 1
 """Validation clouds are resampled from this stream index, the same every epoch."""
 
 LAST, BEST = "last.pt", "best.pt"
+
+EPOCH_DECODINGS = {"": Decoding("threshold", PAPER_THRESHOLD), "size_": Decoding("size")}
+"""The decodings validated every epoch, by the prefix of their columns."""
 
 
 @dataclass(frozen=True)
@@ -57,10 +78,21 @@ class TrainOptions:
     val_fraction: float = 0.2
     source: Literal["points", "observed"] = "points"
     resume: bool = False
+    target: str = "label"
+    """The loss (`osvp.loss.TARGETS`); all but ``label`` need a version-2 dataset."""
+    max_objects: int | None = None
+    """Train on this many of the training side's objects (a seeded, nested draw); None: all."""
+    sample_fraction: float = 1.0
+    """Train on this seeded, nested fraction of the (remaining) training samples."""
 
     def check(self) -> None:
         if self.preset not in PRESETS:
             raise DataError(f"unknown preset {self.preset!r}; choose {', '.join(sorted(PRESETS))}")
+        if self.target not in TARGETS:
+            raise DataError(f"unknown target {self.target!r}; choose {', '.join(TARGETS)}")
+        if self.max_objects is not None and self.max_objects < 1:
+            raise DataError(f"max objects {self.max_objects} must be >= 1")
+        check_sample_fraction(self.sample_fraction)
         for name, value in (("epochs", self.epochs), ("batch size", self.batch_size), ("lr step", self.lr_step)):
             if value < 1:
                 raise DataError(f"{name} {value} must be >= 1")
@@ -95,10 +127,45 @@ class EpochReport:
 @dataclass(frozen=True)
 class TrainOutcome:
     out: Path
-    best_f1: float
+    best_score: float
+    """The best validation value of ``best_metric``."""
+    best_metric: str
+    """``cover_f1`` (nearest minimum cover, threshold 0.5) with covers, else ``f1`` (label bits)."""
     best_epoch: int
     epochs: int
     history: list[dict[str, float]]
+
+
+def covers_needed(target: str) -> str | None:
+    """What needs the minimum covers when training or scoring ``target``: None for ``label``."""
+    return f"target {target!r}" if target in AMBIGUITY_TARGETS else None
+
+
+def selection_metric(bank: SampleBank) -> str:
+    """The validation figure ``best.pt`` maximises."""
+    return "cover_f1" if bank.covers is not None else "f1"
+
+
+def run_rows(bank: SampleBank, options: TrainOptions) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """(training rows, validation rows) of a run: the split, then the training subset
+    (``max_objects``, ``sample_fraction``); validation never depends on the subset."""
+    train_side, val_rows = split_rows(bank, options.split, options.val_fraction, options.seed)
+    subset = training_subset(bank, train_side, options.max_objects, options.sample_fraction, options.seed)
+    return subset, val_rows
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    """What a checkpoint says about the run beside its weights."""
+
+    epoch: int
+    """Epochs completed."""
+    history: list[dict[str, float]]
+    best_epoch: int
+    best_metric: str
+    tuned_threshold: float
+    train_samples: int
+    val_samples: int
 
 
 @contextmanager
@@ -122,61 +189,95 @@ def train(
 ) -> TrainOutcome:
     """Train (or resume) into ``options.out``: last.pt, best.pt, metrics.csv, curves.png."""
     options.check()
-    bank = bank or SampleBank.load(options.data, options.source)
-    train_rows, val_rows = split_rows(bank, options.split, options.val_fraction, options.seed)
+    needs = covers_needed(options.target)
+    bank = bank or SampleBank.load(options.data, options.source, covers_for=needs)
+    if needs is not None:
+        require_covers(bank, needs)
+    train_rows, val_rows = run_rows(bank, options)
+    val_covers = bank.covers.take(val_rows) if bank.covers is not None else None
     preset = PRESETS[options.preset]
     network, optimiser, scheduler, start, history, best = _start(options, bank, preset.num_points)
-    best_f1 = max((row["f1"] for row in history), default=-1.0)
+    metric = selection_metric(bank)
+    best_score = max((row[metric] for row in history), default=-1.0)
     for epoch in range(start, options.epochs):
         started = time.perf_counter()
         train_loss, loading = _train_epoch(network, optimiser, bank, train_rows, options, epoch, on_batch)
         scheduler.step()
         spent = time.perf_counter() - started
-        val_loss, metrics = evaluate_rows(network, bank, val_rows, preset.num_points, options)
+        val_loss, probabilities = predict_rows(network, bank, val_rows, preset.num_points, options)
+        figures, tuned = validation_figures(bank, val_rows, probabilities, val_covers)
         row = {
             "epoch": epoch + 1,
             "train_loss": train_loss,
             "val_loss": val_loss,
-            **metrics.as_dict(),
+            **figures,
             "seconds": spent,
             "train_samples_per_s": len(train_rows) / spent,
             "loader_samples_per_s": len(train_rows) / loading if loading > 0 else float("inf"),
         }
         history.append(row)
-        improved = row["f1"] > best_f1
+        improved = row[metric] > best_score
         if improved:
-            best_f1, best = row["f1"], epoch + 1
-        state = _state(options, bank, network, optimiser, scheduler, epoch + 1, history, best)
+            best_score, best = row[metric], epoch + 1
+        record = RunRecord(epoch + 1, history, best, metric, tuned, len(train_rows), len(val_rows))
+        state = _state(options, bank, network, optimiser, scheduler, record)
         if improved:
             save_checkpoint(options.out / BEST, state)
         save_checkpoint(options.out / LAST, state)
         write_metrics_csv(options.out / "metrics.csv", history)
-        draw_curves(options.out / "curves.png", history, f"osvp {options.preset}, lambda {options.lambda_}")
+        title = f"osvp {options.preset}, target {options.target}, lambda {options.lambda_}"
+        draw_curves(options.out / "curves.png", history, title)
         if on_epoch:
             on_epoch(EpochReport(epoch + 1, options.epochs, row, improved))
-    return TrainOutcome(options.out, best_f1, best, options.epochs, history)
+    return TrainOutcome(options.out, best_score, metric, best, options.epochs, history)
 
 
-def evaluate_rows(
+def validation_figures(
+    bank: SampleBank,
+    rows: npt.NDArray[np.int64],
+    probabilities: npt.NDArray[np.float32],
+    covers: CoverBank | None,
+) -> tuple[dict[str, float], float]:
+    """One epoch's validation columns (each of `EPOCH_DECODINGS`, the tuned threshold and its F1)
+    and the tuned threshold; ``covers``: those of ``rows``, in order."""
+    state, labels = bank.view_state[rows], bank.labels[rows]
+    figures: dict[str, float] = {}
+    for prefix, decoding in EPOCH_DECODINGS.items():
+        scores = decoded_metrics(probabilities, state, labels, decoding, covers).as_dict()
+        figures |= {f"{prefix}{key}": value for key, value in scores.items()}
+    tuned, tuned_f1 = tune_threshold(probabilities, state, labels, covers)
+    return figures | {"tuned_threshold": tuned, "tuned_f1": tuned_f1}, tuned
+
+
+def predict_rows(
     network: OSVPNetwork,
     bank: SampleBank,
     rows: npt.NDArray[np.int64],
     num_points: int,
     options: TrainOptions,
     seed: int | None = None,
-) -> tuple[float, SetMetrics]:
-    """Mean SCLoss and set metrics of the network on ``rows`` (fixed resampling, eval mode)."""
+) -> tuple[float, npt.NDArray[np.float32]]:
+    """Mean target loss of the network on ``rows`` and its probabilities (len(rows), n), with a
+    fixed resampling in eval mode."""
     network.eval()
-    metrics, total, count = SetMetrics(), 0.0, 0
+    found: list[npt.NDArray[np.float32]] = []
+    total, count = 0.0, 0
     with torch.no_grad():
         for start in range(0, len(rows), options.batch_size):
             chosen = rows[start : start + options.batch_size]
-            batch = bank.batch(chosen, num_points, options.seed if seed is None else seed, VALIDATION_EPOCH)
+            batch = bank.batch(
+                chosen,
+                num_points,
+                options.seed if seed is None else seed,
+                VALIDATION_EPOCH,
+                with_covers=options.target == "mincover",
+            )
             logits = network(batch.points.to(options.device), batch.view_state.to(options.device)).cpu()
-            total += float(sc_loss(logits, batch.labels, options.lambda_)) * len(chosen)
+            total += float(target_loss(options.target, logits, batch, options.lambda_)) * len(chosen)
             count += len(chosen)
-            metrics.add(torch.sigmoid(logits), batch.labels)
-    return (total / count if count else float("nan")), metrics
+            found.append(torch.sigmoid(logits).numpy())
+    probabilities = np.concatenate(found) if found else np.zeros((0, bank.num_views), dtype=np.float32)
+    return (total / count if count else float("nan")), probabilities
 
 
 def _train_epoch(
@@ -196,10 +297,11 @@ def _train_epoch(
     with seeded_torch(stream_seed(options.seed, epoch, 2), options.device):
         for start in range(0, len(order), options.batch_size):
             clock = time.perf_counter()
-            batch = bank.batch(order[start : start + options.batch_size], num_points, options.seed, epoch)
+            rows_now = order[start : start + options.batch_size]
+            batch = bank.batch(rows_now, num_points, options.seed, epoch, with_covers=options.target == "mincover")
             loading += time.perf_counter() - clock
             logits = network(batch.points.to(options.device), batch.view_state.to(options.device))
-            loss = sc_loss(logits, batch.labels.to(options.device), options.lambda_)
+            loss = target_loss(options.target, logits, batch, options.lambda_)
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
@@ -224,12 +326,16 @@ def _start(
         raise DataError(f"{options.out}: nothing to resume (no {LAST}); start without --resume")
     if options.resume:
         checkpoint = load_checkpoint(last)
+        if checkpoint.version < CHECKPOINT_VERSION:
+            raise CheckpointError(
+                f"{last}: written by an older osvp (checkpoint version {checkpoint.version}); start a new --out"
+            )
         checkpoint.require(bank.num_views, num_points)
         stored = checkpoint.training
         if stored.get("options") != options.identity() or stored.get("config_hash") != bank.config_hash:
             raise CheckpointError(
                 f"{last}: was trained with other options or data; resume with the same --data, --preset, --lambda, "
-                "--batch-size, --seed and --split, or start a new --out"
+                "--target, --batch-size, --seed, --split, --max-objects and --sample-fraction, or start a new --out"
             )
         network = checkpoint.network(options.device).train()
         optimiser, scheduler = _optimiser(network, options)
@@ -255,9 +361,7 @@ def _state(
     network: OSVPNetwork,
     optimiser: torch.optim.Optimizer,
     scheduler: Any,
-    epoch: int,
-    history: list[dict[str, float]],
-    best_epoch: int,
+    record: RunRecord,
 ) -> dict[str, Any]:
     preset = PRESETS[options.preset]
     return {
@@ -265,7 +369,9 @@ def _state(
         "num_views": bank.num_views,
         "num_points": preset.num_points,
         "source": options.source,
-        "epoch": epoch,
+        "epoch": record.epoch,
+        "decoding": "tuned",
+        "tuned_threshold": record.tuned_threshold,
         "model": {k: v.detach().cpu() for k, v in network.state_dict().items()},
         "optimiser": optimiser.state_dict(),
         "scheduler": scheduler.state_dict(),
@@ -274,7 +380,10 @@ def _state(
             "config_hash": bank.config_hash,
             "data": bank.url,
             "samples": len(bank),
-            "history": history,
-            "best_epoch": best_epoch,
+            "train_samples": record.train_samples,
+            "val_samples": record.val_samples,
+            "history": record.history,
+            "best_epoch": record.best_epoch,
+            "best_metric": record.best_metric,
         },
     }

@@ -1,0 +1,121 @@
+"""Decodings: how a network's per-view probabilities become a view set.
+
+The paper keeps the views above 0.5 (``threshold``). A network trained on one arbitrary cover per
+sample spreads its probability over interchangeable views, so that rule under-predicts (recall
+0.36 with 3.5 views where the labels need 4.4); the other decodings correct for it:
+
+- ``threshold`` (0.5) or ``threshold=T``: the views above T;
+- ``tuned``: the views above the checkpoint's threshold, chosen on the run's validation samples
+  (`osvp.metrics.tune_threshold`);
+- ``size``: as many views as the probabilities add up to, the most probable first: k =
+  round(sum p) over the views not yet taken (halves round up), at least 1 unless every such
+  probability is below `TINY` (the network says nothing is missing);
+- ``topk=K``: the K most probable views.
+
+Views of the view state (already taken) are never selected; ties in probability go to the lower
+view index. ``datagen evaluate`` reaches these as ``osvp+NAME:FILE`` through
+`osvp.planning.CheckpointScorer.select_views`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+DECODINGS = ("threshold", "tuned", "size", "topk")
+PAPER_THRESHOLD = 0.5
+TINY = 0.05
+"""``size`` selects nothing when every free view's probability is below this."""
+
+
+@dataclass(frozen=True)
+class Decoding:
+    """A parsed decoding: its name and its number (the threshold, or K for ``topk``)."""
+
+    name: str
+    value: float | None = None
+
+    @property
+    def spec(self) -> str:
+        """The text that names it (``threshold=0.3``, ``tuned``, ``size``)."""
+        if self.name == "threshold" and self.value != PAPER_THRESHOLD:
+            return f"threshold={self.value:g}"
+        if self.name == "topk":
+            return f"topk={int(self.value or 0)}"
+        return self.name
+
+
+def parse_decoding(text: str, tuned_threshold: float | None = None) -> Decoding:
+    """``threshold``, ``threshold=T``, ``tuned``, ``size`` or ``topk=K``; `ValueError` (one line, with
+    the choices) for anything else, and for ``tuned`` when no tuned threshold is known."""
+    name, equals, argument = text.partition("=")
+    choices = ", ".join(DECODINGS)
+    if name == "threshold":
+        value = _number(argument, text) if equals else PAPER_THRESHOLD
+        if not 0.0 <= value <= 1.0:
+            raise ValueError(f"decoding {text!r}: the threshold must lie in [0, 1]")
+        return Decoding("threshold", value)
+    if name == "topk" and equals:
+        k = _number(argument, text)
+        if k < 1 or k != int(k):
+            raise ValueError(f"decoding {text!r}: K must be a whole number >= 1")
+        return Decoding("topk", float(k))
+    if name == "topk":
+        raise ValueError("decoding 'topk' needs its K, e.g. topk=4")
+    if equals:
+        raise ValueError(f"decoding {text!r}: {name!r} takes no value; choose {choices}")
+    if name == "size":
+        return Decoding("size")
+    if name == "tuned":
+        if tuned_threshold is None:
+            raise ValueError("decoding 'tuned': this checkpoint holds no tuned threshold (trained by an older osvp)")
+        return Decoding("tuned", float(tuned_threshold))
+    raise ValueError(f"unknown decoding {text!r}; choose {choices}")
+
+
+def _number(argument: str, text: str) -> float:
+    try:
+        value = float(argument)
+    except ValueError:
+        raise ValueError(f"decoding {text!r}: {argument!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"decoding {text!r}: {argument!r} is not a finite number")
+    return value
+
+
+def select_views(
+    probabilities: npt.ArrayLike, view_state: npt.ArrayLike, decoding: Decoding | str
+) -> npt.NDArray[np.bool_]:
+    """The views ``decoding`` takes: (S, n) or (n,) bools for probabilities of that shape."""
+    chosen = parse_decoding(decoding) if isinstance(decoding, str) else decoding
+    p = np.asarray(probabilities, dtype=np.float64)
+    state = np.asarray(view_state) > 0.5
+    if p.shape != state.shape or p.ndim not in (1, 2):
+        raise ValueError(f"probabilities {p.shape} and view state {state.shape} must be one (n,) or (S, n) shape")
+    if p.ndim == 1:
+        return select_views(p[None], state[None], chosen)[0]
+    free = ~state
+    if chosen.name in ("threshold", "tuned"):
+        return (p > float(chosen.value if chosen.value is not None else PAPER_THRESHOLD)) & free
+    if chosen.name == "size":
+        counts = np.floor(np.where(free, p, 0.0).sum(axis=1) + 0.5).astype(np.int64)
+        peak = np.where(free, p, -1.0).max(axis=1, initial=-1.0)
+        counts = np.where(peak < TINY, 0, np.maximum(counts, 1))
+    elif chosen.name == "topk":
+        counts = np.full(p.shape[0], int(chosen.value or 0), dtype=np.int64)
+    else:
+        raise ValueError(f"unknown decoding {chosen.name!r}; choose {', '.join(DECODINGS)}")
+    return _most_probable(p, free, counts)
+
+
+def _most_probable(
+    p: npt.NDArray[np.float64], free: npt.NDArray[np.bool_], counts: npt.NDArray[np.int64]
+) -> npt.NDArray[np.bool_]:
+    """Per row, the ``counts`` most probable free views (ties to the lower index)."""
+    order = np.argsort(np.where(free, -p, np.inf), axis=1, kind="stable")
+    rank = np.empty_like(order)
+    np.put_along_axis(rank, order, np.arange(p.shape[1])[None, :].repeat(p.shape[0], axis=0), axis=1)
+    return (rank < counts[:, None]) & free
