@@ -20,6 +20,8 @@ class ObjectRef(BaseModel):
     units: Literal["auto", "m", "mm"] = "auto"
     up: Literal["z", "y"] = "z"
     size: float | None = None
+    variant: int | None = Field(default=None, ge=0)
+    """Seed of a deformed variant of the object (``variant=`` in an objects file); None: as it is."""
     object_id: str
     origin: str = ""
     """``FILE:LINE`` where it was listed."""

@@ -1,5 +1,6 @@
-"""``datagen config show``, ``datagen objects builtins | show | synth`` and ``datagen scan``: a job's
-inputs (generation configs, objects files, built-in and synthetic shapes) and what each view sees.
+"""``datagen config show``, ``datagen objects builtins | show | synth | variants`` and ``datagen scan``: a
+job's inputs (generation configs, objects files, built-in, synthetic and varied shapes) and what each view
+sees.
 
 Plain functions; `datagen.cli.main` registers them.
 """
@@ -9,7 +10,7 @@ from __future__ import annotations
 import statistics
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
@@ -17,10 +18,13 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from datagen.cli.common import ConfigOption, console, user_errors
+from datagen.cli.common import ConfigOption, console, say, user_errors
 from datagen.config_io import config_to_toml, load_config
-from datagen.errors import DatagenError
+from datagen.errors import DatagenError, OutputError
 from datagen.pipeline.thread_limits import single_threaded_blas
+
+if TYPE_CHECKING:
+    from datagen.pipeline.objects.spec import ObjectSpec
 
 
 def config_show(config: ConfigOption = None) -> None:
@@ -77,9 +81,20 @@ def objects_show(
                 f"{prepared.size:.4f}",
             )
         console.print(table)
+        _print_variants(listing.objects)
         console.print(f"{len(listing.entries) - failures} objects ready, {failures} with errors")
         if failures:
             raise typer.Exit(1)
+
+
+def _print_variants(specs: list[ObjectSpec]) -> None:
+    """One line per variant: the deformation its seed draws (the table has no room for it)."""
+    from datagen.pipeline.objects.variants import describe_variant
+
+    for spec in specs:
+        parameters = describe_variant(spec)
+        if parameters is not None:
+            say(f"line {spec.line} {spec.name}: {parameters}")
 
 
 def objects_synth(
@@ -93,6 +108,35 @@ def objects_synth(
     with user_errors():
         listing = synthesize(count, seed, out)
         console.print(f"wrote {count} meshes and {listing}")
+
+
+def objects_variants(
+    objects: Annotated[Path, typer.Argument(help="Objects file whose objects to vary.")],
+    count: Annotated[int, typer.Option("--count", "-n", help="Variants per object (1 to 1000).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Objects file to write; its paths start at its folder.")],
+    seed: Annotated[int, typer.Option("--seed", "-s", help="Draws the variant seeds; same seed, same bytes.")] = 0,
+) -> None:
+    """Write an objects file listing each object of OBJECTS followed by COUNT seeded shape variants of it."""
+    from datagen.pipeline.objects.objects_file import read_objects_file, variants_listing
+
+    with user_errors():
+        listing = read_objects_file(objects)
+        _write_text(out, variants_listing(listing, count, seed, out))
+        say(f"wrote {out}: {len(listing.objects)} objects, each followed by {count} variants")
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write through a hidden temporary sibling and rename, creating the folder; `OutputError` on failure."""
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder; give --out a file path, e.g. {path / 'variants.txt'}")
+    temporary = path.with_name(f".{path.name}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        temporary.write_bytes(text.encode("utf-8"))
+        temporary.replace(path)
+    except OSError as exc:
+        reason = exc.strerror or exc
+        raise OutputError(f"{path}: cannot write the objects file ({reason}); choose another --out") from None
 
 
 def scan(

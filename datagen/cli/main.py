@@ -36,6 +36,7 @@ config_app.command("show")(inputs.config_show)
 objects_app.command("builtins")(inputs.objects_builtins)
 objects_app.command("show")(inputs.objects_show)
 objects_app.command("synth")(inputs.objects_synth)
+objects_app.command("variants")(inputs.objects_variants)
 app.command("scan")(inputs.scan)
 
 poco_app.command("train")(poco.poco_train)

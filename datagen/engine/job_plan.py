@@ -45,6 +45,7 @@ def object_ref(spec: ObjectSpec) -> ObjectRef:
         units=spec.options.units,
         up=spec.options.up,
         size=spec.options.size,
+        variant=spec.options.variant,
         object_id=spec.object_id,
         origin=spec.origin,
     )
@@ -54,7 +55,7 @@ def object_spec(ref: ObjectRef, generator: dict[str, object] | None = None) -> O
     return ObjectSpec(
         source=ref.source,
         name=ref.name,
-        options=ObjectOptions(units=ref.units, up=ref.up, size=ref.size),
+        options=ObjectOptions(units=ref.units, up=ref.up, size=ref.size, variant=ref.variant),
         object_id=ref.object_id,
         origin=ref.origin,
         generator=dict(generator or {}),

@@ -172,3 +172,14 @@ def test_a_version_1_dataset_trains_on_labels_and_refuses_the_other_targets(
         with pytest.raises(DataError, match=f"target '{target}' needs every sample's minimum covers") as info:
             train(options(v1_dataset_url, tmp_path / target, target=target), bank=old)
         assert "datagen shards relabel" in str(info.value) and not (tmp_path / target).exists()
+
+
+def test_steps_give_every_training_set_the_same_optimisation(tmp_path: Path) -> None:
+    """--steps 1000 at batch 32 is 32,000 sample passes: 4 epochs of 8,000 samples, 32 of 1,000; the learning
+    rate halves once, after 80 % of the epochs."""
+    options = TrainOptions(data="unused", out=tmp_path, steps=1000, batch_size=32)
+    assert (options.for_samples(8000).epochs, options.for_samples(8000).lr_step) == (4, 4)
+    assert (options.for_samples(1000).epochs, options.for_samples(1000).lr_step) == (32, 26)
+    assert options.for_samples(10**6).epochs == 1
+    plain = TrainOptions(data="unused", out=tmp_path, epochs=7)
+    assert plain.for_samples(1000) is plain

@@ -135,6 +135,22 @@ def test_builtin_is_resolved_with_its_generator_identity(meshes: Path) -> None:
     assert sized.name == f"small_{name}"
 
 
+def test_variant_option_is_parsed_and_names_the_variant(meshes: Path) -> None:
+    name = smallest_builtin()
+    listing = listing_of(
+        meshes,
+        f"tetra.obj variant=7\ntetra.obj variant=0 size=0.1\nbuiltin:{name} variant=3\n"
+        "other.obj variant=12 name=mine\n",
+    )
+    assert listing.errors == []
+    seven, zero, builtin, named = listing.objects
+    assert seven.options == ObjectOptions(variant=7)
+    assert zero.options == ObjectOptions(size=0.1, variant=0)
+    assert builtin.options == ObjectOptions(variant=3)
+    assert [seven.name, zero.name, builtin.name, named.name] == ["tetra-v7", "tetra-v0", f"{name}-v3", "mine"]
+    assert builtin.object_id == builtin_object_id(builtins.builtin_generator_identity(name), ObjectOptions(variant=3))
+
+
 def test_builtin_ids_differ_between_builtins(meshes: Path) -> None:
     names = builtins.builtin_names()
     listing = listing_of(meshes, "".join(f"builtin:{name}\n" for name in names))
@@ -207,6 +223,12 @@ def test_bad_units_or_up(meshes: Path, option: str, needles: tuple[str, ...]) ->
 def test_bad_size(meshes: Path, value: str) -> None:
     error = only_error(meshes, f"tetra.obj size={value}")
     assert_line_error(error, meshes, 3, "size=", value, "metres", "size=0.12")
+
+
+@pytest.mark.parametrize("value", ["-1", "abc", "1.5", "+3", "0x10", "1e3", "\u0663", "seven"])
+def test_bad_variant(meshes: Path, value: str) -> None:
+    error = only_error(meshes, f"tetra.obj variant={value}")
+    assert_line_error(error, meshes, 3, f"variant={value!r}", "non-negative integer seed", "variant=3")
 
 
 def test_missing_mesh_file(meshes: Path) -> None:
@@ -406,6 +428,31 @@ def test_object_id_changes_with_the_file_bytes(meshes: Path) -> None:
 @pytest.mark.parametrize("option", ["units=m", "units=mm", "up=y", "size=0.1", "size=0.11"])
 def test_object_id_changes_with_options(meshes: Path, option: str) -> None:
     assert id_of(meshes, f"tetra.obj {option}") != id_of(meshes, "tetra.obj")
+
+
+def test_no_variant_keeps_todays_canonical_json_and_object_id(meshes: Path) -> None:
+    """Datasets made before ``variant=`` existed keep their object ids (and so task ids and seeds)."""
+    options = ObjectOptions(units="mm", up="y", size=0.12)
+    assert options.canonical() == '{"size":0.12,"units":"mm","up":"y"}'
+    assert ObjectOptions().canonical() == '{"size":null,"units":"auto","up":"z"}'
+    known = "4e31735845da8c2dc157fd9609c837f1e9dc4e2624e7314bc7a21e76b02ab0e4"  # made before variant= existed
+    assert file_object_id(TETRA.encode(), options) == known
+    assert id_of(meshes, "tetra.obj units=mm up=y size=0.12") == known
+
+
+def test_object_id_differs_per_variant_and_is_stable(meshes: Path) -> None:
+    ids = [id_of(meshes, "tetra.obj"), *(id_of(meshes, f"tetra.obj variant={seed}") for seed in (0, 1, 2, 99))]
+    assert len(set(ids)) == len(ids)
+    assert id_of(meshes, "tetra.obj variant=1") == ids[2]
+    assert id_of(meshes, "tetra.obj variant=01 name=x") == ids[2]  # the seed's value, not its spelling
+    assert ObjectOptions(variant=1).canonical() == '{"size":null,"units":"auto","up":"z","variant":1}'
+
+
+def test_same_variant_twice_is_a_duplicate_other_variants_are_not(meshes: Path) -> None:
+    listing = listing_of(meshes, "tetra.obj\ntetra.obj variant=1\ntetra.obj variant=2\ntetra.obj variant=1\n")
+    (error,) = listing.errors
+    assert_line_error(error, meshes, 4, "same object as line 2")
+    assert [spec.name for spec in listing.objects] == ["tetra", "tetra-v1", "tetra-v2"]
 
 
 def test_builtin_id_ignores_mesh_bytes_but_not_the_generator() -> None:

@@ -1,19 +1,23 @@
 """Parse objects files: one object per line, ``PATH [key=value ...]``.
 
-Keys: ``name``, ``units`` (auto|m|mm), ``up`` (z|y), ``size`` (metres). ``#`` starts a comment; blank
-lines are skipped; relative paths resolve against the objects file's folder; ``builtin:NAME`` names a
-built-in shape. A bad line does not stop the others: the listing keeps it as an `ObjectLineError`
-naming the file, the line and the fix, so a job can record it and go on.
+Keys: ``name``, ``units`` (auto|m|mm), ``up`` (z|y), ``size`` (metres), ``variant`` (a seed: a
+deformed copy, see `datagen.pipeline.objects.variants`). ``#`` starts a comment; blank lines are
+skipped; relative paths resolve against the objects file's folder; ``builtin:NAME`` names a built-in
+shape. A bad line does not stop the others: the listing keeps it as an `ObjectLineError` naming the
+file, the line and the fix, so a job can record it and go on. `variants_listing` writes the text of an
+objects file that adds seeded variants to every object of another.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import re
 import shlex
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from datagen.errors import ObjectsFileError
+from datagen.errors import ObjectsFileError, OutputError
 from datagen.pipeline.objects.spec import (
     BUILTIN_PREFIX,
     ObjectOptions,
@@ -21,9 +25,12 @@ from datagen.pipeline.objects.spec import (
     builtin_object_id,
     file_object_id,
 )
+from datagen.pipeline.objects.variants import draw_variant_seeds
 from datagen.shapes import builtins
 
-ALLOWED_KEYS = ("name", "units", "up", "size")
+ALLOWED_KEYS = ("name", "units", "up", "size", "variant")
+LINE_SYNTAX = "'PATH [name=..] [units=auto|m|mm] [up=z|y] [size=METRES] [variant=SEED]', or 'builtin:NAME'"
+_DIGITS = re.compile(r"[0-9]+")
 
 
 @dataclass(frozen=True)
@@ -88,10 +95,7 @@ def read_objects_file(path: str | Path) -> ObjectsListing:
         if tokens:
             entries.append(_parse_line(path, number, raw.strip(), tokens))
     if not entries:
-        raise ObjectsFileError(
-            f"{path}: lists no objects; add one line per mesh, 'PATH [name=..] [units=auto|m|mm] "
-            "[up=z|y] [size=METRES]', or 'builtin:NAME'"
-        )
+        raise ObjectsFileError(f"{path}: lists no objects; add one line per mesh, {LINE_SYNTAX}")
     return ObjectsListing(path=path, entries=tuple(_flag_duplicates(entries)))
 
 
@@ -134,7 +138,7 @@ def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectE
         return fail(f"cannot read {mesh_path} ({exc.strerror})")
     return ObjectSpec(
         source=str(mesh_path),
-        name=options.get("name", mesh_path.stem),
+        name=options.get("name") or default_name(mesh_path.stem, object_options),
         options=object_options,
         object_id=file_object_id(data, object_options),
         origin=f"{origin}:{number}",
@@ -158,7 +162,23 @@ def _object_options(options: dict[str, str]) -> ObjectOptions:
             raise ValueError(f"size={options['size']!r} is not a number; give metres, e.g. size=0.12") from None
         if not math.isfinite(size) or size <= 0:
             raise ValueError(f"size={options['size']} must be a positive number of metres, e.g. size=0.12")
-    return ObjectOptions(units=units, up=up, size=size)  # type: ignore[arg-type]
+    return ObjectOptions(units=units, up=up, size=size, variant=_variant(options))  # type: ignore[arg-type]
+
+
+def _variant(options: dict[str, str]) -> int | None:
+    if "variant" not in options:
+        return None
+    if not _DIGITS.fullmatch(options["variant"]):
+        raise ValueError(
+            f"variant={options['variant']!r} is not allowed; give a non-negative integer seed, e.g. variant=3 "
+            "(leave it out for the object as it is)"
+        )
+    return int(options["variant"])
+
+
+def default_name(stem: str, options: ObjectOptions) -> str:
+    """A line's name without ``name=``: the file stem (or built-in name), plus ``-v<SEED>`` for a variant."""
+    return stem if options.variant is None else f"{stem}-v{options.variant}"
 
 
 def _builtin_spec(target: str, name: str | None, options: ObjectOptions, origin: str, number: int) -> ObjectEntry:
@@ -175,7 +195,7 @@ def _builtin_spec(target: str, name: str | None, options: ObjectOptions, origin:
         )
     return ObjectSpec(
         source=target,
-        name=name or shape,
+        name=name or default_name(shape, options),
         options=options,
         object_id=builtin_object_id(identity, options),
         origin=f"{origin}:{number}",
@@ -225,3 +245,62 @@ def _flag_duplicates(entries: list[ObjectEntry]) -> list[ObjectEntry]:
 
 def _line_error(entry: ObjectSpec, message: str) -> ObjectLineError:
     return ObjectLineError(origin=entry.origin.rsplit(":", 1)[0], line=entry.line, text=entry.source, message=message)
+
+
+def variants_listing(listing: ObjectsListing, count: int, seed: int, out: Path) -> str:
+    """The text of an objects file at ``out``: each object of ``listing``, then ``count`` variants of it
+    (the same seeds, from `draw_variant_seeds`, for every object), paths relative to ``out``'s folder."""
+    seeds = draw_variant_seeds(count, seed)
+    _check_can_vary(listing, out)
+    folder = Path(out).absolute().parent.resolve()
+    source = _relative(listing.path, folder)
+    lines = [f"# {count} variants of each object of {source}, seed {seed} (datagen objects variants)"]
+    for spec in listing.objects:
+        lines.append(object_line(spec, folder))
+        lines.extend(object_line(spec, folder, variant) for variant in seeds)
+    return "\n".join(lines) + "\n"
+
+
+def object_line(spec: ObjectSpec, folder: Path, variant: int | None = None) -> str:
+    """The objects-file line of ``spec`` (with ``variant`` set, when given) for a file in ``folder``."""
+    options = spec.options if variant is None else replace(spec.options, variant=variant)
+    tokens = [spec.source if spec.is_builtin else _relative(Path(spec.source), folder)]
+    if spec.named:
+        tokens.append(f"name={spec.name if variant is None else default_name(spec.name, options)}")
+    if options.units != "auto":
+        tokens.append(f"units={options.units}")
+    if options.up != "z":
+        tokens.append(f"up={options.up}")
+    if options.size is not None:
+        tokens.append(f"size={options.size!r}")
+    if options.variant is not None:
+        tokens.append(f"variant={options.variant}")
+    return " ".join(shlex.quote(token) for token in tokens)
+
+
+def _check_can_vary(listing: ObjectsListing, out: Path) -> None:
+    """Refuse what would make a wrong variants file: bad lines, lines already variants, writing over the input."""
+    if listing.errors:
+        first, more = listing.errors[0], len(listing.errors) - 1
+        also = f" (and {more} more bad lines)" if more else ""
+        raise ObjectsFileError(f"{first}{also}; fix or delete the bad lines before making variants")
+    for spec in listing.objects:
+        if spec.options.variant is not None:
+            raise ObjectsFileError(
+                f"{spec.origin}: is already a variant (variant={spec.options.variant}); list the base objects only"
+            )
+    if Path(out).absolute().resolve() == listing.path.resolve():
+        raise OutputError(f"{out}: is the objects file being varied; write the variants to another file")
+
+
+def _relative(path: Path, folder: Path) -> str:
+    """``path`` relative to ``folder``; absolute when the two share no folder below the root (``/tmp/x``
+    and ``/data/meshes``), where a relative path would only break when either moves."""
+    resolved = path.resolve()
+    try:
+        common = Path(os.path.commonpath([resolved, folder]))
+    except ValueError:  # different Windows drives
+        return resolved.as_posix()
+    if common == Path(common.anchor):
+        return resolved.as_posix()
+    return Path(os.path.relpath(resolved, folder)).as_posix()

@@ -1,4 +1,4 @@
-"""Object preparation (PIPELINE.md section 1): load, units, up axis, centre, size, yaw.
+"""Object preparation (PIPELINE.md section 1): load, units, up axis, centre, variant, size, yaw.
 
 Every failure a user's file can cause raises `ObjectError` with one line naming the file and the
 fix; the caller records it and goes on with the other objects.
@@ -18,6 +18,7 @@ import trimesh
 from datagen.errors import ObjectError
 from datagen.pipeline.camera import max_fitting_radius
 from datagen.pipeline.objects.spec import BUILTIN_PREFIX, ObjectSpec
+from datagen.pipeline.objects.variants import make_variant
 from datagen.shapes import builtins
 from schemas.config import GenerationConfig
 
@@ -34,7 +35,8 @@ class PreparedObject:
     units_guessed: str
     """'m' or 'mm': what the file's units were taken to be."""
     scale: float
-    """Total factor applied to the file's coordinates (units times size scaling)."""
+    """Total factor applied to the file's coordinates (units times size scaling; a variant's deformation
+    comes between the two and is not part of it)."""
     size: float
     """Largest bounding-box extent after preparation, metres."""
     watertight: bool
@@ -104,9 +106,13 @@ def prepare_object(spec: ObjectSpec, config: GenerationConfig) -> PreparedObject
     if spec.options.up == "y":
         # +90 degrees about x takes +y to +z; a rotation, never the mirroring y/z swap.
         vertices = vertices @ np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]).T
-    low, high = vertices.min(axis=0), vertices.max(axis=0)
-    vertices = vertices - (low + high) / 2.0
-    size = float((high - low).max())
+    size = _extent(vertices)
+    vertices = _centred(vertices)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if spec.options.variant is not None:
+        vertices, faces = make_variant(vertices, faces, spec)
+        size = _extent(vertices)
+        vertices = _centred(vertices)
     if size <= 0:
         raise ObjectError(f"{where}: the mesh has zero extent; it cannot be imaged")
     target = spec.options.size if spec.options.size is not None else _clamp(size, config.size_range)
@@ -116,11 +122,11 @@ def prepare_object(spec: ObjectSpec, config: GenerationConfig) -> PreparedObject
     prepared = PreparedObject(
         spec=spec,
         vertices=vertices,
-        faces=np.asarray(mesh.faces, dtype=np.int64),
+        faces=faces,
         units_guessed=units_guessed,
         scale=unit_scale * size_scale,
         size=target,
-        watertight=bool(mesh.is_watertight),
+        watertight=bool(mesh.is_watertight),  # a variant keeps it: shared-midpoint splits, a bijection
     )
     check_fits_image(prepared, config)
     return prepared
@@ -141,6 +147,11 @@ def check_fits_image(prepared: PreparedObject, config: GenerationConfig) -> None
 
 def _clamp(value: float, bounds: tuple[float, float]) -> float:
     return min(max(value, bounds[0]), bounds[1])
+
+
+def _centred(vertices: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Translated so that the bounding-box centre is at the origin."""
+    return vertices - (vertices.min(axis=0) + vertices.max(axis=0)) / 2.0
 
 
 def _extent(vertices: npt.NDArray[np.float64]) -> float:

@@ -21,9 +21,14 @@ class ObjectOptions:
     up: UpAxis = "z"
     size: float | None = None
     """Largest bounding-box extent in metres after preparation; None scales into ``size_range``."""
+    variant: int | None = None
+    """Seed of a shape variant (`datagen.pipeline.objects.variants`); None is the object as it is."""
 
     def canonical(self) -> str:
+        """Sorted-key JSON; ``variant`` enters only when set, so objects without one keep their ids."""
         data: dict[str, Any] = {"units": self.units, "up": self.up, "size": self.size}
+        if self.variant is not None:
+            data["variant"] = self.variant
         return json.dumps(data, sort_keys=True, separators=(",", ":"))
 
 

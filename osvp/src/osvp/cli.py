@@ -60,6 +60,13 @@ def _parser() -> argparse.ArgumentParser:
         sub.add_argument("--out", type=Path, required=True, help="folder for checkpoints, metrics.csv, curves.png")
         sub.add_argument("--preset", choices=sorted(PRESETS), default="small")
         sub.add_argument("--epochs", type=int, default=30)
+        sub.add_argument(
+            "--steps",
+            type=int,
+            default=None,
+            help="train for about this many gradient steps instead of --epochs (epochs follow the training set's "
+            "size; the learning rate halves after 80%% of them): equal optimisation for learning curves",
+        )
         sub.add_argument("--lr", type=float, default=None, help="AdamW learning rate (default: the preset's)")
         sub.add_argument("--seed", type=int, default=0)
         sub.add_argument(
@@ -135,6 +142,7 @@ def _options(args: argparse.Namespace, out: Path, lambda_: float, resume: bool) 
         preset=args.preset,
         lambda_=lambda_,
         epochs=args.epochs,
+        steps=args.steps,
         batch_size=args.batch_size,
         learning_rate=args.lr,
         device=args.device,

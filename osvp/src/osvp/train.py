@@ -21,7 +21,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -84,6 +84,17 @@ class TrainOptions:
     """Train on this many of the training side's objects (a seeded, nested draw); None: all."""
     sample_fraction: float = 1.0
     """Train on this seeded, nested fraction of the (remaining) training samples."""
+    steps: int | None = None
+    """Train for about this many gradient steps instead of `epochs` (see `for_samples`)."""
+
+    def for_samples(self, train_samples: int) -> TrainOptions:
+        """The options for a training set of ``train_samples``: with `steps`, as many epochs as give
+        that many gradient steps, the learning rate halved once after 80 % of them (as the recipe's 20
+        of 25 epochs), so runs on more or fewer samples get the same optimisation, only other data."""
+        if self.steps is None:
+            return self
+        epochs = max(1, math.ceil(self.steps * self.batch_size / max(train_samples, 1)))
+        return replace(self, epochs=epochs, lr_step=max(1, math.ceil(0.8 * epochs)))
 
     def check(self) -> None:
         if self.preset not in PRESETS:
@@ -93,6 +104,8 @@ class TrainOptions:
         if self.max_objects is not None and self.max_objects < 1:
             raise DataError(f"max objects {self.max_objects} must be >= 1")
         check_sample_fraction(self.sample_fraction)
+        if self.steps is not None and self.steps < 1:
+            raise DataError(f"steps {self.steps} must be >= 1")
         for name, value in (("epochs", self.epochs), ("batch size", self.batch_size), ("lr step", self.lr_step)):
             if value < 1:
                 raise DataError(f"{name} {value} must be >= 1")
@@ -166,6 +179,7 @@ class RunRecord:
     tuned_threshold: float
     train_samples: int
     val_samples: int
+    train_objects: int
 
 
 @contextmanager
@@ -194,6 +208,8 @@ def train(
     if needs is not None:
         require_covers(bank, needs)
     train_rows, val_rows = run_rows(bank, options)
+    options = options.for_samples(len(train_rows))
+    train_objects = len({bank.object_ids[i] for i in train_rows.tolist()})
     val_covers = bank.covers.take(val_rows) if bank.covers is not None else None
     preset = PRESETS[options.preset]
     network, optimiser, scheduler, start, history, best = _start(options, bank, preset.num_points)
@@ -219,7 +235,7 @@ def train(
         improved = row[metric] > best_score
         if improved:
             best_score, best = row[metric], epoch + 1
-        record = RunRecord(epoch + 1, history, best, metric, tuned, len(train_rows), len(val_rows))
+        record = RunRecord(epoch + 1, history, best, metric, tuned, len(train_rows), len(val_rows), train_objects)
         state = _state(options, bank, network, optimiser, scheduler, record)
         if improved:
             save_checkpoint(options.out / BEST, state)
@@ -382,6 +398,7 @@ def _state(
             "samples": len(bank),
             "train_samples": record.train_samples,
             "val_samples": record.val_samples,
+            "train_objects": record.train_objects,
             "history": record.history,
             "best_epoch": record.best_epoch,
             "best_metric": record.best_metric,
