@@ -14,12 +14,17 @@ import numpy as np
 import numpy.typing as npt
 import zarr
 import zarr.codecs
+from zarr.core.array_spec import ArrayConfigParams
 from zarr.storage import FsspecStore, LocalStore
 
 from schemas.shard import ShardAttributes, array_names
 from storage.location import DamagedFile, Location, damaged, first_line, is_temporary
 
 KEY_CHUNK_ROWS = 32_768
+WRITE_EVERY_CHUNK: ArrayConfigParams = {"write_empty_chunks": True}
+"""zarr skips a chunk that holds only the fill value (zeros) and reads it back as zeros; a reader
+could not tell it from a lost file. Every chunk is written, so a missing chunk file always means
+damage (a task whose every label is empty stores all-zero covers)."""
 COMPRESSORS = (
     zarr.codecs.BloscCodec(cname="zstd", clevel=3, shuffle=zarr.codecs.BloscShuffle.shuffle),
     # A checksum per chunk: Blosc alone may decode a truncated chunk into garbage without an error.
@@ -55,10 +60,18 @@ def write_shard_group(
                 chunks=(rows, 3),
                 shards=(shard_rows, 3),
                 compressors=COMPRESSORS,
+                config=WRITE_EVERY_CHUNK,
             )
         else:
             chunks = tuple(max(1, s) for s in data.shape)
-            array = group.create_array(name, shape=data.shape, dtype=data.dtype, chunks=chunks, compressors=COMPRESSORS)
+            array = group.create_array(
+                name,
+                shape=data.shape,
+                dtype=data.dtype,
+                chunks=chunks,
+                compressors=COMPRESSORS,
+                config=WRITE_EVERY_CHUNK,
+            )
         if data.size:
             array[...] = data
     group.attrs.put(attributes.model_dump(mode="json"))

@@ -180,3 +180,22 @@ def test_a_version_1_shard_in_a_version_2_dataset(tmp_path: Path) -> None:
     fx.build_dataset(str(root), [v1_first, *v2_rest])
     found = validate(str(root), full=True)
     assert f"{SHARD}: schema version 1, the dataset is version 2" in found
+
+
+def test_a_task_whose_every_label_is_empty_reads_back(tmp_path: Path) -> None:
+    """Its covers are all zero (the empty cover); zarr would skip such a chunk as fill value, and a
+    reader must still find every chunk file (a missing one means damage)."""
+    import dataclasses
+
+    from datagen.engine.shard_payload import task_payload
+
+    result = next(r for r in fx.task_results() if r.task_id == FIRST)
+    empty = [s for s in result.samples if s.empty_label]
+    assert empty, "the capsule has input cases that already see all of P_full"
+    payload = task_payload(dataclasses.replace(result, samples=tuple(empty)), fx.config())
+    assert not payload.arrays[COVERS].any()
+    root = tmp_path / "empty"
+    fx.build_dataset(str(root), [payload], finalise_index=True)
+    dataset = open_dataset(str(root))
+    assert [dataset.ambiguity(i).covers.tolist() for i in range(len(dataset))] == [[0]] * len(empty)
+    assert validate(str(root), full=True) == []
