@@ -1,4 +1,4 @@
-"""Shared test fixtures: the real meshes of ../shared/meshes (skipped cleanly when absent)."""
+"""Shared test fixtures: the real meshes of ../shared/meshes (skipped cleanly when absent), a CLI runner."""
 
 from __future__ import annotations
 
@@ -7,8 +7,19 @@ from pathlib import Path
 
 import pytest
 from support.meshes import SHARED_MESHES, shared_mesh_paths
+from typer.testing import CliRunner
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
+@pytest.fixture
+def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
+    """A CLI runner with a wide console, so table cells holding error messages are not wrapped mid-word."""
+    from datagen.cli import common
+
+    monkeypatch.setattr(common.console, "_width", 400)
+    monkeypatch.setattr(common.error_console, "_width", 400)
+    return CliRunner()
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from datagen.cli import common
 from datagen.cli.main import app
 from datagen.config_io import load_config
 from datagen.pipeline.objects.objects_file import read_objects_file
@@ -20,14 +19,6 @@ FAST_BUILTIN = "capsule"
 """The quickest built-in to prepare and scan (about 0.1 s for one rotation)."""
 
 TETRA = "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
-
-
-@pytest.fixture
-def runner(monkeypatch) -> CliRunner:
-    # a wide console, so that table cells holding error messages are not wrapped mid-word
-    monkeypatch.setattr(common.console, "_width", 400)
-    monkeypatch.setattr(common.error_console, "_width", 400)
-    return CliRunner()
 
 
 def error_lines(text: str) -> list[str]:

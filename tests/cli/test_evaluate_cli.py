@@ -9,17 +9,9 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from datagen.cli import common
 from datagen.cli.main import app
 
 BROKEN_MESH = b"v 0 0 0\nv 1 0 0\nf 1 2 9\n" + bytes(range(256)) * 4
-
-
-@pytest.fixture
-def runner(monkeypatch) -> CliRunner:
-    monkeypatch.setattr(common.console, "_width", 400)
-    monkeypatch.setattr(common.error_console, "_width", 400)
-    return CliRunner()
 
 
 @pytest.fixture

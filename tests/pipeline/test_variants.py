@@ -235,13 +235,6 @@ def test_subdivision_respects_the_face_cap(monkeypatch) -> None:
 
 
 @pytest.fixture
-def runner(monkeypatch) -> CliRunner:
-    monkeypatch.setattr(common.console, "_width", 400)
-    monkeypatch.setattr(common.error_console, "_width", 400)
-    return CliRunner()
-
-
-@pytest.fixture
 def app() -> typer.Typer:
     """The ``objects`` commands as `datagen.cli.main` registers them."""
     from datagen.cli.main import objects_app
