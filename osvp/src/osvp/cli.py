@@ -30,7 +30,7 @@ PAPER_LAMBDAS = (0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
 EXIT_USER_ERROR = 2
 EVAL_DECODINGS = ("threshold", "tuned", "size")
 PRIOR_DECODINGS = ("threshold", "size")
-SELECTION = {"cover_f1": "F1 (against the nearest minimum cover, p > 0.5)", "f1": "F1 (label bits, p > 0.5)"}
+SELECTION = {"size_cover_f1": "F1 (against the nearest minimum cover, size decoding)", "f1": "F1 (label bits, p > 0.5)"}
 
 
 def main(argv: Sequence[str] | None = None) -> int:

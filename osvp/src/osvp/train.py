@@ -9,10 +9,11 @@ continues with exactly the weights an uninterrupted run would have.
 Every epoch validates on the same rows (``max_objects`` and ``sample_fraction`` only thin the
 training side) with two decodings, the paper's 0.5 rule and ``size``, and picks the ``tuned``
 threshold on those rows (`osvp.metrics.tune_threshold`), so each checkpoint carries the threshold
-of its own weights. ``best.pt`` is the epoch with the best validation F1 at threshold 0.5 against
-the nearest minimum cover when the dataset has covers, else against the label bits (a fixed rule:
-selecting by the tuned threshold's own F1 would pick the epoch on the rows that tuned it). The
-authors' selection reset every epoch; ours does not.
+of its own weights. ``best.pt`` is the epoch with the best validation F1 against the nearest
+minimum cover under the ``size`` decoding when the dataset has covers, else the best F1 against the
+label bits at 0.5. A rule with nothing tuned on the rows it judges, and one that does not depend on
+how a target calibrates its probabilities: a ``marginal`` network's probabilities are fractions of
+covers, which 0.5 cuts almost entirely. The authors' selection reset every epoch; ours does not.
 """
 
 from __future__ import annotations
@@ -156,7 +157,7 @@ def covers_needed(target: str) -> str | None:
 
 def selection_metric(bank: SampleBank) -> str:
     """The validation figure ``best.pt`` maximises."""
-    return "cover_f1" if bank.covers is not None else "f1"
+    return "size_cover_f1" if bank.covers is not None else "f1"
 
 
 def run_rows(bank: SampleBank, options: TrainOptions) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
