@@ -15,7 +15,7 @@ def test_train_then_eval(dataset_url: str, tmp_path: Path, capsys: pytest.Captur
     args = ["train", "--data", dataset_url, "--out", str(out), "--epochs", "2", "--batch-size", "32"]
     assert main([*args, "--target", "support", "--split", "objects", "--val-fraction", "0.34"]) == 0
     err = capsys.readouterr().err
-    assert "epoch 2/2" in err and "best validation F1 (against the nearest minimum cover, p > 0.5)" in err
+    assert "epoch 2/2" in err and "best validation F1 (against the nearest minimum cover, size decoding)" in err
     assert "cover F1" in err and "size:" in err and "tuned" in err
     assert sorted(p.name for p in out.iterdir()) == ["best.pt", "curves.png", "last.pt", "metrics.csv"]
     assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt"), "--split", "val", "--json"]) == 0

@@ -63,7 +63,11 @@ def test_visibility_agrees_with_open3d(path, mode):
 def test_union_of_views_has_a_plausible_size(path, mode):
     result = mesh_result(path).modes[mode]
     union = result.union
-    assert 400 <= union.size <= 20_000, union.size
+    # A surface of area A meets at most about sqrt(3) * A / s^2 voxels of side s (a plane at the worst
+    # angle; curvature and edges add little at this resolution): a union past 2 * A / s^2 means keys
+    # off the surface or a wrong scale, whatever the mesh.
+    surface_cells = mesh_result(path).area / TARGETS.voxel_size**2
+    assert 400 <= union.size <= 2.0 * surface_cells, (union.size, surface_cells)
     assert np.isin(union, result.ours.ground_truth.keys).all()
 
 
@@ -86,5 +90,10 @@ def test_every_ground_truth_key_centre_lies_near_the_surface(path):
 
 @mesh_parameters
 def test_targets_keys_seen_by_one_view_only_are_rare(path):
-    counts = mesh_result(path).modes["targets"].single_view_counts()
-    assert np.median(counts) <= 10, counts
+    """The 32 views overlap: in the median view at most 1 % of the keys are seen by no other view
+    (deep pockets such as a gear's tooth gaps make a few views private, never the typical one)."""
+    result = mesh_result(path).modes["targets"]
+    counts = result.single_view_counts()
+    sizes = np.array([keys.size for keys in result.ours.visible_keys()])
+    private = counts / np.maximum(sizes, 1)
+    assert np.median(private) <= 0.01, private

@@ -69,6 +69,8 @@ class MeshResult:
     modes: dict[str, ModeResult]
     centre_distance: np.ndarray
     """Distance of every final P_gt key centre (pixels mode, a superset of targets') to the surface."""
+    area: float
+    """Surface area of the prepared mesh, m^2."""
 
 
 @functools.cache
@@ -123,4 +125,6 @@ def mesh_result(path: Path) -> MeshResult:
     closest, _, _ = trimesh.proximity.closest_point(mesh, centres)
     # the distance to a point trimesh returns on the surface bounds the true distance from above
     distance = np.linalg.norm(closest - centres, axis=1)
-    return MeshResult(name=path.name, faces=len(faces), sampled=sampled, modes=modes, centre_distance=distance)
+    return MeshResult(
+        name=path.name, faces=len(faces), sampled=sampled, modes=modes, centre_distance=distance, area=float(mesh.area)
+    )
