@@ -120,29 +120,41 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 
 
 def draw(rows: list[dict[str, Any]], path: Path, title: str) -> None:
-    """Coverage and lift against training objects (left) and training samples (right)."""
-    figure = Figure(figsize=(10, 4), dpi=100)
-    for column, (kind, axis) in enumerate((("objects", "training objects"), ("samples", "training samples"))):
+    """Coverage, random at equal views and lift against training objects (left) and training samples
+    (right: the object-count points as a line, the sample fractions of the largest count and any
+    ``--also`` run as separate markers)."""
+    figure = Figure(figsize=(11, 4.2), dpi=100)
+    curves = (
+        ("coverage", "o-", "planner coverage %"),
+        ("random", "s--", "random, equal views %"),
+        ("lift", "^-", "lift %"),
+    )
+    for column, kind in enumerate(("objects", "samples")):
         axes = figure.add_subplot(1, 2, column + 1)
-        chosen = [r for r in rows if r["kind"] in (("objects",) if kind == "objects" else ("objects", "samples"))]
-        if kind == "samples":
-            largest = max(r["objects"] for r in chosen)
-            chosen = [r for r in chosen if r["objects"] == largest]
-        chosen.sort(key=lambda r: r[kind])
-        x = [r[kind] for r in chosen]
-        axes.plot(x, [r["unseen"]["coverage"] for r in chosen], "o-", label="planner coverage %")
-        axes.plot(x, [r["random"]["coverage"] for r in chosen], "s--", label="random, equal views %")
-        axes.plot(x, [r["unseen"]["lift"] for r in chosen], "^-", label="lift %")
-        for r in rows:
-            if r["kind"] == "also":
-                axes.plot([r[kind]], [r["unseen"]["coverage"]], "*", markersize=12, label=f"{r['point']} coverage %")
+        line = sorted((r for r in rows if r["kind"] == "objects"), key=lambda r: r[kind])
+        x = [r[kind] for r in line]
+        for figure_name, style, label in curves:
+            axes.plot(x, [_figure(r, figure_name) for r in line], style, label=label)
+        extra = [r for r in rows if r["kind"] != "objects" and (kind == "samples" or r["kind"] == "also")]
+        for r in extra:
+            axes.plot([r[kind]], [_figure(r, "coverage")], "*", markersize=12, label=f"{r['point']} coverage %")
+            axes.plot([r[kind]], [_figure(r, "lift")], "x", markersize=9, label=f"{r['point']} lift %")
+        ticks = sorted({r[kind] for r in [*line, *extra]})
         axes.set_xscale("log")
-        axes.set_xlabel(axis)
+        axes.set_xticks(ticks, [f"{t:,}" for t in ticks], rotation=30 if kind == "samples" else 0, fontsize=8)
+        axes.minorticks_off()
+        axes.set_xlabel(f"training {kind}")
         axes.grid(True, alpha=0.3)
         axes.legend(fontsize=7)
-    figure.suptitle(f"osvp on six unseen meshes vs training data ({title})")
+    figure.suptitle(f"osvp on six unseen meshes against training data ({title})")
     figure.tight_layout()
     figure.savefig(path)
+
+
+def _figure(row: dict[str, Any], name: str) -> float:
+    if name == "random":
+        return float(row["random"]["coverage"])
+    return float(row["unseen"][name])
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ work=${1:-recipe-work}
 steps=${STEPS:-10000}
 lambda=${LAMBDA:-2}
 target=${TARGET:-mincover}
-decoding=${DECODING:-size}
+decoding=${DECODING:-tuned}
 objects=$(bash osvp/recipe/objects.sh "$work")
 
 echo "== 1. training set: 86 objects x 8 rotations, POCO refiner (osvp/recipe/training.toml)"
