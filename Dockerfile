@@ -28,6 +28,12 @@ RUN apt-get update \
 # torch first and pinned, from the index that matches the base (CPU wheels by default).
 RUN python -m pip install "torch==${TORCH_VERSION}" --index-url "${TORCH_INDEX}"
 
+# What Open3D's module links against (libX11, libGL, libudev): without them `import open3d` fails,
+# even headless, and so does the poisson refiner (a slim base has none of them).
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends libx11-6 libgl1 libudev1 \
+    && rm -rf /var/lib/apt/lists/*
+
 WORKDIR /opt/datagen
 COPY pyproject.toml README.md SCHEMA.md ./
 COPY datagen ./datagen

@@ -391,6 +391,25 @@ class Ledger:
             )
         return self.job(job_id)
 
+    def redo_tasks(self, job_id: str, task_ids: Sequence[str]) -> Job:
+        """For `datagen shards repair`: these finished tasks (their shards were found damaged and
+        their commit records withdrawn) become pending again, and so does the job, so a driver runs
+        exactly them. Refused while a live driver holds the job (it may still be writing)."""
+        job = self.job(job_id)
+        now = time.time()
+        with self._transaction() as db:
+            drivers = [_driver(r) for r in db.execute("SELECT * FROM drivers WHERE job_id = ?", (job_id,))]
+            if job.state == RUNNING and any(not d.lost(now) for d in drivers):
+                raise LedgerError(f"job {job_id} is running; wait for it to finish (or cancel it), then repair")
+            marks = ", ".join("?" for _ in task_ids)
+            db.execute(
+                "UPDATE tasks SET state = ?, lease_owner = NULL, lease_expires = NULL, error = NULL, updated = ? "
+                f"WHERE job_id = ? AND task_id IN ({marks})",
+                (PENDING, now, job_id, *task_ids),
+            )
+            db.execute("UPDATE jobs SET state = ?, updated = ? WHERE job_id = ?", (PENDING, now, job_id))
+        return self.job(job_id)
+
     # -- tasks --------------------------------------------------------------------------------
     def tasks(self, job_id: str) -> list[Task]:
         return [_task(r) for r in self._db.execute("SELECT * FROM tasks WHERE job_id = ? ORDER BY position", (job_id,))]

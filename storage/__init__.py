@@ -7,9 +7,10 @@ Depends on numpy, zarr, pyarrow, fsspec and `schemas` only: a training package n
 from storage.covers import covers_universe, nearest_cover, undominated, universe_rows
 from storage.dataset_info import init_dataset, read_info
 from storage.export import export_air
-from storage.location import DamagedFile, Location, StorageError, is_s3, open_location, storage_failure
+from storage.location import DamagedFile, Location, StorageError, is_s3, open_location
 from storage.reader import Dataset, LabelAmbiguity, finalise, load_index, open_dataset
 from storage.shards import ShardReader
+from storage.store_errors import check_store, is_store_failure, storage_failure, store_errors
 from storage.validate import SAMPLED_ROWS_PER_SHARD, Validation, validate, validate_dataset
 from storage.writer import (
     ShardPayload,
@@ -35,6 +36,7 @@ __all__ = [
     "ShardReader",
     "StorageError",
     "Validation",
+    "check_store",
     "committed_tasks",
     "covers_universe",
     "export_air",
@@ -42,6 +44,7 @@ __all__ = [
     "holds_dataset",
     "init_dataset",
     "is_s3",
+    "is_store_failure",
     "load_index",
     "nearest_cover",
     "open_dataset",
@@ -51,6 +54,7 @@ __all__ = [
     "read_failures",
     "read_info",
     "storage_failure",
+    "store_errors",
     "stored_bytes",
     "sweep_orphans",
     "sweep_temporaries",

@@ -27,7 +27,10 @@ TEMPORARY_MARK = ".tmp-"
 ZARR_PARTIAL = re.compile(r"\.[0-9a-f]{32}\.partial$")
 """zarr's LocalStore writes ``<name>.<uuid hex>.partial`` and renames it into place."""
 
-RERUN_FIX = "re-run the task (`datagen resume JOB`, or re-submit the job to the same --out)"
+REPAIR_COMMAND = "datagen shards repair"
+RERUN_FIX = f"`{REPAIR_COMMAND} URL` re-runs the damaged tasks and finalises the index again"
+"""The fix of a damaged task's file. `resume` and a re-submit cannot do it: the ledger has the task
+done and the dataset has its commit record, so both find nothing to run."""
 
 
 class DamagedFile(StorageError):
@@ -43,8 +46,12 @@ class DamagedFile(StorageError):
 
 
 def damaged(url: str, relative: str, problem: str, rerun_task: bool = False) -> DamagedFile:
-    """One line naming the dataset, the file and the fix (`datagen shards validate`)."""
-    fix = f"run `datagen shards validate {url}`" + (f", then {RERUN_FIX}" if rerun_task else "")
+    """One line naming the dataset, the file and the fix: `datagen shards repair URL` where re-running
+    the task (or finalising the index again) mends it, else `datagen shards validate URL` to see all."""
+    if rerun_task:
+        fix = f"run `{REPAIR_COMMAND} {url}` (it re-runs the damaged tasks; `datagen shards validate {url}` lists them)"
+    else:
+        fix = f"run `datagen shards validate {url}`"
     error = DamagedFile(f"{url}: {relative}: {problem}; {fix}")
     error.relative, error.problem = relative, problem
     return error
@@ -119,9 +126,9 @@ class Location:
         """Publish a file only if none exists yet; True if this call created it.
 
         Local: a fully written temporary file is hard-linked into place, which fails atomically if
-        the target exists. Elsewhere: check, then put (object stores give no portable
-        compare-and-swap; the ledger makes concurrent attempts of one task rare, and both write
-        identical content by determinism).
+        the target exists. S3: a conditional put (``If-None-Match: *``), after a check (a store that
+        ignores the condition still rarely sees two attempts of one task: the ledger makes them rare,
+        and both write identical content by determinism). Other filesystems: check, then put.
         """
         target = self.path(relative)
         self.fs.makedirs(posixpath.dirname(target), exist_ok=True)
@@ -136,16 +143,39 @@ class Location:
                 os.unlink(temporary)
         if self.fs.exists(target):
             return False
-        self.fs.pipe_file(target, data)
+        if not is_s3(self.url):
+            self.fs.pipe_file(target, data)
+            return True
+        try:
+            self.fs.pipe_file(target, data, mode="create")
+        except FileExistsError:
+            return False
+        except OSError as exc:
+            if _precondition_failed(exc):
+                return False
+            raise
         return True
 
     def listdir(self, relative: str) -> list[str]:
-        """Names directly under a folder, sorted; empty when it does not exist."""
+        """Names directly under a folder that hold a file, sorted; empty when it does not exist.
+
+        On an object store the names come from the files below (one recursive listing): SeaweedFS
+        keeps a folder whose every object was deleted as an empty prefix, so a swept attempt would
+        otherwise be listed (and "removed") again by every later sweep.
+        """
+        if self.is_local:
+            try:
+                entries = self.fs.ls(self.path(relative), detail=False)
+            except FileNotFoundError:
+                return []
+            return sorted(posixpath.basename(str(e).rstrip("/")) for e in entries)
+        base = self.path(relative).strip("/")
         try:
-            entries = self.fs.ls(self.path(relative), detail=False)
+            found = self.fs.find(self.path(relative))
         except FileNotFoundError:
             return []
-        return sorted(posixpath.basename(str(e).rstrip("/")) for e in entries)
+        names = {str(path).strip("/").removeprefix(base).strip("/").split("/")[0] for path in found}
+        return sorted(name for name in names if name)
 
     def remove(self, relative: str, recursive: bool = False) -> None:
         with contextlib.suppress(FileNotFoundError):
@@ -168,6 +198,18 @@ def _durable_temporary(target: str, data: bytes) -> str:
         _discard(temporary)
         raise
     return temporary
+
+
+def _precondition_failed(error: OSError) -> bool:
+    """A conditional put refused because the object exists. s3fs turns that into FileExistsError
+    only when the answer names the condition (AWS, moto); SeaweedFS answers 412 PreconditionFailed
+    without it, which s3fs raises as a plain OSError."""
+    cause = error.__cause__
+    response = getattr(cause, "response", None)
+    if not isinstance(response, dict):
+        return False
+    status = response.get("ResponseMetadata", {}).get("HTTPStatusCode")
+    return bool(response.get("Error", {}).get("Code") == "PreconditionFailed" or status == 412)
 
 
 def _discard(path: str) -> None:
@@ -200,16 +242,6 @@ def environment_options(url: str) -> dict[str, Any]:
     if region:
         options["client_kwargs"] = {"region_name": region}
     return options
-
-
-def storage_failure(url: str, error: BaseException) -> StorageError:
-    """One line for a store that cannot be reached or refuses us, naming what to check."""
-    detail = first_line(error)
-    if is_s3(url):
-        fix = "check the bucket, AWS_ENDPOINT_URL and the credentials (AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY)"
-    else:
-        fix = "check the path and its permissions"
-    return StorageError(f"{url}: cannot use the dataset store ({detail}); {fix}")
 
 
 def open_location(url: str, storage_options: dict[str, Any] | None = None) -> Location:

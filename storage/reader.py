@@ -28,8 +28,9 @@ from storage.index import INDEX_COVERAGE_FILE as INDEX_COVERAGE_FILE
 from storage.index import INDEX_FILE as INDEX_FILE
 from storage.index import finalise as finalise
 from storage.index import load_index
-from storage.location import Location, StorageError, open_location, storage_failure
+from storage.location import Location, StorageError, open_location
 from storage.shards import ShardReader
+from storage.store_errors import check_store, is_store_failure, storage_failure
 from storage.writer import read_failures
 
 SHARD_CACHE = 16
@@ -45,11 +46,16 @@ def open_dataset(url: str, storage_options: dict[str, Any] | None = None) -> Dat
     disagrees with the commit records.
     """
     location = open_location(url, storage_options)
+    check_store(location)
     try:
         info = read_info(location)
         return Dataset(location, info, load_index(location))
-    except OSError as exc:  # the store itself failed (damaged files are `DamagedFile`, named)
-        raise storage_failure(url, exc) from None
+    except StorageError:
+        raise
+    except Exception as exc:  # the store itself failed (damaged files are `DamagedFile`, named)
+        if isinstance(exc, OSError) or is_store_failure(exc):
+            raise storage_failure(url, exc) from None
+        raise
 
 
 class Dataset:

@@ -18,7 +18,8 @@ from zarr.core.array_spec import ArrayConfigParams
 from zarr.storage import FsspecStore, LocalStore
 
 from schemas.shard import ShardAttributes, array_names
-from storage.location import DamagedFile, Location, damaged, first_line, is_temporary
+from storage.location import Location, damaged, first_line, is_temporary
+from storage.store_errors import is_store_failure, storage_failure
 
 KEY_CHUNK_ROWS = 32_768
 WRITE_EVERY_CHUNK: ArrayConfigParams = {"write_empty_chunks": True}
@@ -104,11 +105,15 @@ class ShardReader:
         except FileNotFoundError as exc:
             raise self._damage("the shard group is missing") from exc
         except DAMAGE as exc:
-            raise self._damage(f"unreadable group metadata zarr.json ({first_line(exc)})") from exc
+            raise self._damage(f"unreadable group metadata zarr.json ({first_line(exc)})", cause=exc) from exc
         if verify:
             self.verify()
 
-    def _damage(self, problem: str, relative: str | None = None) -> DamagedFile:
+    def _damage(self, problem: str, relative: str | None = None, cause: BaseException | None = None) -> Exception:
+        """`DamagedFile` for the file, unless ``cause`` is a failure of the store itself (unreachable,
+        refused): then the store's one line, so nobody re-runs a sound task for a network error."""
+        if cause is not None and is_store_failure(cause):
+            return storage_failure(self.location.url, cause)
         return damaged(self.location.url, relative or self.relative, problem, rerun_task=True)
 
     def _array(self, name: str) -> zarr.Array[Any]:
@@ -120,7 +125,7 @@ class ShardReader:
             except KeyError:
                 raise self._damage(f"array {name} is missing") from None
             except DAMAGE as exc:
-                raise self._damage(f"unreadable metadata {name}/zarr.json ({first_line(exc)})") from exc
+                raise self._damage(f"unreadable metadata {name}/zarr.json ({first_line(exc)})", cause=exc) from exc
             if not isinstance(found, zarr.Array):
                 raise self._damage(f"{name} is not an array")
             node = self._nodes[name] = found
@@ -134,14 +139,14 @@ class ShardReader:
                 self._cache[name] = np.asarray(node[...])
             except DAMAGE as exc:
                 problem = f"unreadable chunk data ({first_line(exc)}); the shard is truncated or corrupt"
-                raise self._damage(problem, f"{self.relative}/{name}") from exc
+                raise self._damage(problem, f"{self.relative}/{name}", cause=exc) from exc
         return self._cache[name]
 
     def array_names(self) -> list[str]:
         try:
             return sorted(self._group.array_keys())
         except DAMAGE as exc:
-            raise self._damage(f"unreadable array metadata ({first_line(exc)})") from exc
+            raise self._damage(f"unreadable array metadata ({first_line(exc)})", cause=exc) from exc
 
     def array_shape(self, name: str) -> tuple[int, ...]:
         return tuple(self._array(name).shape)
@@ -202,7 +207,7 @@ class ShardReader:
         except FileNotFoundError:
             raise self._damage(f"array {name} is missing") from None
         except (*DAMAGE, ArithmeticError) as exc:
-            raise self._damage(f"unreadable metadata {name}/zarr.json ({first_line(exc)})") from exc
+            raise self._damage(f"unreadable metadata {name}/zarr.json ({first_line(exc)})", cause=exc) from exc
 
     def _listing(self) -> set[str]:
         """Non-empty files of the group, relative to it (temporaries left out); listed once."""

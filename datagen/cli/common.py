@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.console import Console
@@ -30,15 +30,33 @@ UrlArgument = Annotated[str, typer.Argument(metavar="URL", help="Dataset: a loca
 
 
 @contextmanager
-def user_errors() -> Iterator[None]:
+def user_errors(url: str | None = None) -> Iterator[None]:
     """Print a user-caused error (any `DatagenError`: datagen's own, `storage.StorageError`,
     `jobs.LedgerError`) as one ``error: <message>`` line on stderr and exit with `EXIT_USER_ERROR`;
-    bugs keep their traceback."""
+    bugs keep their traceback. With the command's dataset ``url``, a failure of its store met
+    mid-command (the store went away after `storage.check_store` passed) is such a line too."""
     try:
         yield
     except DatagenError as exc:
-        error_console.print(f"error: {exc}", markup=False, highlight=False, soft_wrap=True)
-        raise typer.Exit(EXIT_USER_ERROR) from None
+        _print_error(str(exc))
+    except Exception as exc:
+        from storage import is_store_failure, storage_failure
+
+        if url is None or not is_store_failure(exc):
+            raise
+        _print_error(str(storage_failure(url, exc)))
+
+
+def _print_error(message: str) -> None:
+    error_console.print(f"error: {message}", markup=False, highlight=False, soft_wrap=True)
+    raise typer.Exit(EXIT_USER_ERROR)
+
+
+def dataset_options(url: str) -> dict[str, Any]:
+    """fsspec options of a dataset URL: the bounded timeouts and retries of `RunSettings`."""
+    from datagen.settings import RunSettings
+
+    return RunSettings().storage_options(url)
 
 
 def say(text: str) -> None:

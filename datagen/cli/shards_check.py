@@ -10,20 +10,14 @@ functions; `datagen.cli.shards` registers them.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from datagen.cli.common import UrlArgument, progress_bar, say, user_errors
+from datagen.cli.common import UrlArgument, dataset_options, progress_bar, say, user_errors
 
 if TYPE_CHECKING:
     from datagen.inspection.label_check import LabelReport
-
-
-def _options(url: str) -> dict[str, Any]:
-    from datagen.settings import RunSettings
-
-    return RunSettings().storage_options(url)
 
 
 def validate(
@@ -38,11 +32,12 @@ def validate(
     Warnings (leftover temporary files, stale failure records) are printed but do not fail it.
     """
     from datagen.inspection.label_check import ShardLabelCheck
-    from storage import StorageError, open_location
+    from storage import StorageError, check_store, open_location
     from storage.validate import validate_dataset
 
-    with user_errors():
-        options = _options(url)
+    with user_errors(url):
+        options = dataset_options(url)
+        check_store(open_location(url, options))  # an unreachable store is one error line, not a problem
         report: LabelReport | None = None
         try:
             checker: ShardLabelCheck | None = ShardLabelCheck(open_location(url, options), full=every, seed=seed)
@@ -111,14 +106,14 @@ def relabel(
     """A new dataset: the same samples labelled for another alpha or tie-break from the stored sets (no re-imaging)."""
     from datagen.engine.relabel import RelabelProgress, relabel_dataset
 
-    with user_errors():
+    with user_errors(url):
         with progress_bar() as bar:
             task = bar.add_task("relabelling tasks", total=None)
 
             def advance(state: RelabelProgress) -> None:
                 bar.update(task, completed=state.tasks_done, total=state.tasks_total)
 
-            options = _options(url) or _options(out)
+            options = dataset_options(url) or dataset_options(out)
             summary = relabel_dataset(url, alpha, out, storage_options=options, progress=advance, tie_break=tie_break)
         say(
             f"relabelled {summary.samples} samples of {summary.tasks} tasks for alpha {summary.alpha}, tie-break "

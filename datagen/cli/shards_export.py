@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from datagen.cli.common import progress_bar, say, user_errors
+from datagen.cli.common import dataset_options, progress_bar, say, user_errors
 
 
 def export(
@@ -36,13 +36,12 @@ def export(
     ids_<i>.txt, train_split, test_split) so AIR-OSVP's trainer reads it unchanged; samples with an
     empty label or no points are skipped. Prints, and writes to PROVENANCE.md and provenance.json,
     every choice that differs from the authors'."""
-    from datagen.settings import RunSettings
     from storage import export_air
     from storage.export import check_layout
 
-    with user_errors():
+    with user_errors(url):
         check_layout(layout)
-        options = RunSettings().storage_options(url)
+        options = dataset_options(url)
         with progress_bar(remaining=True) as bar:
             task = bar.add_task("exporting samples", total=None)
             summary = export_air(

@@ -16,7 +16,7 @@ import typer
 from rich import box
 from rich.table import Table
 
-from datagen.cli.common import UrlArgument, console, say, user_errors
+from datagen.cli.common import UrlArgument, console, dataset_options, say, user_errors
 from datagen.errors import OutputError
 from datagen.inspection.listing import FAILED, SampleDetails, TaskRow, describe_sample, find_sample, list_tasks
 from datagen.inspection.stats import DatasetStats, dataset_stats
@@ -123,8 +123,8 @@ def ls(url: UrlArgument) -> None:
     whether it committed; each failed task's message follows the table."""
     from storage import open_dataset
 
-    with user_errors():
-        rows = list_tasks(open_dataset(url))
+    with user_errors(url):
+        rows = list_tasks(open_dataset(url, dataset_options(url)))
     console.print(tasks_table(rows))
     failed = [row for row in rows if row.state == FAILED]
     committed = len(rows) - len(failed)
@@ -173,8 +173,8 @@ def show(
     its clouds and views."""
     from storage import open_dataset
 
-    with user_errors():
-        dataset = open_dataset(url)
+    with user_errors(url):
+        dataset = open_dataset(url, dataset_options(url))
         details = describe_sample(dataset, find_sample(dataset, sample))
         console.print(sample_table(details))
         if png is not None:
@@ -259,8 +259,8 @@ def stats(
     solver time percentiles, failed tasks; --json for machines, --png for the histograms."""
     from storage import open_dataset
 
-    with user_errors():
-        summary = dataset_stats(open_dataset(url))
+    with user_errors(url):
+        summary = dataset_stats(open_dataset(url, dataset_options(url)))
         if as_json:
             typer.echo(json.dumps(summary.to_json(), indent=1))
         else:

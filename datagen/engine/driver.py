@@ -51,6 +51,7 @@ from schemas.jobs import JobSpec, TaskSpec
 from schemas.version import SCHEMA_VERSION
 from storage import (
     Location,
+    check_store,
     finalise,
     init_dataset,
     open_location,
@@ -95,7 +96,17 @@ def ensure_ray(address: str | None, num_cpus: int | None) -> None:
         return
     env = {"env_vars": {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}}
     if address:
-        ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.ERROR)
+        try:
+            ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.ERROR)
+        except ValueError as exc:  # a ray:// address without Ray's client extra installed
+            if "ray[client]" not in str(exc):
+                raise
+            raise DatagenError(
+                f"{address}: Ray's client is not installed here; pip install 'ray[client]=={ray.__version__}' "
+                "(or this project with its cluster extra)"
+            ) from None
+        except ConnectionError as exc:  # the head's client port does not answer (Ray gives up after ~30 s)
+            raise DatagenError(f"cannot reach the Ray cluster at {address}: {str(exc).splitlines()[0]}") from None
     else:
         # "local": always a private Ray of our own, even when `ray start` left a cluster running on
         # this machine (joining it would need --address, and would ignore --workers).
@@ -174,6 +185,7 @@ def run_job(
     location = open_location(job.out, storage_options)
     info = dataset_info(config)
     with _store_errors(job.out):
+        check_store(location)  # a wrong endpoint, key or bucket: one line in seconds, nothing written
         _check_same_files(location, config, info.config_hash)
         info = init_dataset(location, info)  # an existing dataset keeps its own layout version
         for number, line_error in enumerate(spec.line_errors):

@@ -36,6 +36,7 @@ from storage import (
     Location,
     ShardReader,
     StorageError,
+    check_store,
     committed_tasks,
     finalise,
     holds_dataset,
@@ -98,10 +99,12 @@ def relabel_dataset(
     and ``tie_break`` (None keeps the source's)."""
     started = time.perf_counter()
     source = open_location(url, storage_options)
+    check_store(source)
     info = read_info(source)
     alpha = info.config.alpha if alpha is None else alpha
     config = _with_labels(info.config, alpha, tie_break or info.config.label_tie_break)
     target = open_location(out_url, storage_options)
+    check_store(target)
     _refuse_existing(target)
     new_info = DatasetInfo(
         schema_version=SCHEMA_VERSION,

@@ -3,16 +3,21 @@
 The engine calls `execute_task` inside a Ray task; tests call it directly. Bad input (a missing or
 corrupt mesh) is an outcome, not an exception: the failure is recorded in the dataset and reported
 so the job goes on. A task already committed (by an earlier attempt or another driver) is not
-recomputed.
+recomputed. A store that fails under a task (an S3 server restarting: connection refused, 5xx) is
+waited for: its reads and its shard write are tried again, `STORE_RETRY_WAITS` apart, before the
+task fails.
 """
 
 from __future__ import annotations
 
+import errno
 import functools
+import sys
 import time
 import uuid
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from datagen.engine.job_plan import object_spec
 from datagen.engine.shard_payload import task_payload
@@ -26,7 +31,15 @@ from schemas.config import GenerationConfig
 from schemas.index import FailureRecord
 from schemas.jobs import ObjectRef, TaskSpec
 from schemas.version import SCHEMA_VERSION
-from storage import open_location, read_commit, write_failure, write_task
+from storage import is_s3, is_store_failure, open_location, read_commit, write_failure, write_task
+
+T = TypeVar("T")
+
+STORE_RETRY_WAITS = (2.0, 5.0, 10.0, 20.0, 30.0)
+"""Seconds before each new try of a task's store reads and shard write when the store failed under
+them (after the request-level retries of `RunSettings.storage_options`): a store down for about a
+minute (a restarting S3 server) costs a wait, not a failed task. Partial files of a failed write
+are never followed (the commit record is written last) and are swept when the job ends."""
 
 
 @dataclass(frozen=True)
@@ -63,7 +76,8 @@ def execute_task(
     frozen = config.model_dump_json()
     generation = _config(frozen)
     location = open_location(out, storage_options)
-    committed = read_commit(location, spec.task_id)
+    remote = is_s3(out)  # a local disk that fails does not come back by waiting
+    committed = _store_retried(lambda: read_commit(location, spec.task_id), remote)
     if committed is not None:
         return TaskOutcome(spec.task_id, True, committed.num_samples, committed.attempt_id, reused=True)
     execution = f"{attempt_id}-{uuid.uuid4().hex[:8]}"
@@ -90,8 +104,44 @@ def execute_task(
             ),
         )
         return TaskOutcome(spec.task_id, False, 0, execution, message=str(exc), seconds=time.perf_counter() - started)
-    record = write_task(location, task_payload(result, generation, schema_version), execution)
+    payload = task_payload(result, generation, schema_version)
+
+    def write() -> Any:  # a new execution id per try: a failed try's partial files are orphans
+        return write_task(location, payload, f"{attempt_id}-{uuid.uuid4().hex[:8]}")
+
+    record = _store_retried(write, remote)
     return TaskOutcome(spec.task_id, True, record.num_samples, record.attempt_id, seconds=time.perf_counter() - started)
+
+
+def _transient_store_failure(error: BaseException) -> bool:
+    """The store failed (unreachable, a botocore or aiohttp error) or answered 5xx (s3fs raises an
+    OSError with errno EREMOTEIO for an internal server error), anywhere along the cause chain; not
+    a refusal (s3fs raises PermissionError for refused credentials: waiting does not change them)."""
+    chain: list[BaseException] = []
+    link: BaseException | None = error
+    while link is not None and len(chain) < 8:
+        chain.append(link)
+        link = link.__cause__ or link.__context__
+    if any(isinstance(link, PermissionError) for link in chain):
+        return False
+    return is_store_failure(error) or any(isinstance(link, OSError) and link.errno == errno.EREMOTEIO for link in chain)
+
+
+def _store_retried(action: Callable[[], T], remote: bool = True) -> T:
+    """``action()``, tried again after each of `STORE_RETRY_WAITS` while a remote store fails under it."""
+    if not remote:
+        return action()
+    for wait in STORE_RETRY_WAITS:
+        try:
+            return action()
+        except Exception as error:
+            if not _transient_store_failure(error):
+                raise
+            # one line in the worker's log (Ray keeps it per worker process): the wait is visible
+            first = (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
+            print(f"datagen: the store failed under a task ({first}); trying again in {wait:g} s", file=sys.stderr)
+            time.sleep(wait)
+    return action()
 
 
 @functools.lru_cache(maxsize=4)

@@ -102,7 +102,7 @@ def test_missing_chunk_file_is_an_error_not_fill_values(ds: Path, damage: str, a
     row = rows_of(dataset, FIRST)[0]
     with pytest.raises(StorageError) as caught:
         dataset[row]
-    assert_one_line(caught.value, ds, SHARD, array, "re-run the task")
+    assert_one_line(caught.value, ds, SHARD, array, f"datagen shards repair {ds}")
     # The intact task still reads.
     assert len(dataset[rows_of(dataset, SECOND)[0]]["points"]) > 0
     assert_validate_names(ds, SHARD, array)

@@ -1,4 +1,4 @@
-"""The cluster's deployment files (docker-compose.yml, Dockerfile, .env.example) checked as data: a
+"""The cluster's deployment files (docker-compose.yml, its podman override, Dockerfile, .env.example) checked as data: a
 mistake here (a port open to the network, a worker built from another image than the head, a secret
 committed, a service nobody health-checks) shows up only on someone's cluster otherwise. When the
 Docker CLI has its compose plugin, `docker compose config` validates the file as Docker reads it.
@@ -18,6 +18,7 @@ import yaml
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 COMPOSE_FILE = REPO_ROOT / "docker-compose.yml"
+PODMAN_OVERRIDE = REPO_ROOT / "docker-compose.podman.yml"
 DOCKERFILE = REPO_ROOT / "Dockerfile"
 ENV_EXAMPLE = REPO_ROOT / ".env.example"
 LOOPBACK_PORT_PREFIX = "${BIND_ADDRESS:-127.0.0.1}:"
@@ -65,9 +66,26 @@ def command_text(service: dict[str, Any]) -> str:
 
 
 def test_compose_parses_with_the_expected_services(compose: dict[str, Any]) -> None:
-    assert sorted(compose["services"]) == ["create-bucket", "head", "minio", "worker"]
+    assert sorted(compose["services"]) == ["head", "s3", "worker"]
     one_shot = sorted(name for name, service in services(compose).items() if is_one_shot(service))
-    assert one_shot == ["create-bucket"]
+    assert one_shot == []  # the S3 server creates its own bucket
+
+
+def test_healthchecks_are_shell_strings(compose: dict[str, Any]) -> None:
+    """podman-compose 1.0.3 turns a list-form test into one quoted word, and pops its first item on
+    the first replica (the second worker then fails to start): every test is a CMD-SHELL string."""
+    lists = sorted(
+        name for name, service in services(compose).items() if not isinstance(service["healthcheck"]["test"], str)
+    )
+    assert lists == []
+
+
+def test_podman_override_only_adds_what_podman_needs(compose: dict[str, Any]) -> None:
+    override = yaml.safe_load(PODMAN_OVERRIDE.read_text())
+    assert set(override["services"]) <= set(compose["services"])
+    # no ports, no environment, no image: podman-compose appends lists and the rest must stay as Docker has it
+    added = sorted({key for service in override["services"].values() for key in service})
+    assert added == ["pull_policy"]
 
 
 def test_every_long_running_service_has_a_healthcheck(compose: dict[str, Any]) -> None:
@@ -99,7 +117,7 @@ def test_ray_services_have_shared_memory_for_the_object_store(compose: dict[str,
     assert sorted(name for name in CLUSTER_SERVICES if not compose["services"][name].get("shm_size")) == []
 
 
-def test_ledger_and_minio_data_live_on_named_volumes(compose: dict[str, Any]) -> None:
+def test_ledger_and_s3_data_live_on_named_volumes(compose: dict[str, Any]) -> None:
     named = set(compose.get("volumes") or {})
 
     def named_volume_at(service: str, target: str) -> str | None:
@@ -111,8 +129,7 @@ def test_ledger_and_minio_data_live_on_named_volumes(compose: dict[str, Any]) ->
 
     home = compose["services"]["head"]["environment"]["DATAGEN_HOME"]
     assert named_volume_at("head", home), f"the ledger ({home}) is not on a named volume"
-    minio_data = compose["services"]["minio"]["command"][1]  # `server /data ...`
-    assert named_volume_at("minio", minio_data), f"MinIO's data ({minio_data}) is not on a named volume"
+    assert named_volume_at("s3", "/data"), "the S3 server's data (/data) is not on a named volume"
 
 
 def test_head_schedules_no_work_and_serves(compose: dict[str, Any]) -> None:

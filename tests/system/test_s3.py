@@ -1,25 +1,22 @@
-"""Datasets on `s3://` against a real S3-compatible HTTP server on loopback (moto's standalone server,
-started and stopped here, with IAM authentication on): a job writes through s3fs and reads back with
+"""Datasets on `s3://` against S3 HTTP servers on loopback, each in turn: moto's standalone server and
+SeaweedFS, a real store (both authenticated; `support.s3_servers`, started once per session): a
+job writes through s3fs and reads back with
 `storage.open_dataset` and the PyTorch Dataset; a run killed while a shard is half written and then
 resumed ends with exactly the planned samples, readers never seeing the half shard; refused
 credentials and an unreachable endpoint fail the job with one error line in bounded time; and no
 secret is written anywhere.
 
-The credentials are real keys of an IAM user created through moto's first unauthenticated calls
-(``INITIAL_NO_AUTH_ACTION_COUNT``); every later request is signed and checked. They reach the
+The credentials are real keys the server checks (moto: an IAM user created through its first
+unauthenticated calls; SeaweedFS: its identities file); every request is signed and checked. They reach the
 driver, the Ray workers and every `datagen` subprocess the usual way: AWS_* environment variables.
 """
 
 from __future__ import annotations
 
-import json
-import os
 import signal
 import socket
-import subprocess
 import sys
 import time
-import urllib.request
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -48,6 +45,7 @@ from support.engine import (
     write_config,
     write_objects,
 )
+from support.s3_servers import BUCKET, REGION, S3Server, unused_port
 
 from datagen import api
 from datagen.settings import RunSettings
@@ -63,10 +61,6 @@ pytestmark = [
     pytest.mark.s3,
 ]
 
-BUCKET = "datasets"
-REGION = "us-east-1"
-BOOTSTRAP_CALLS = 4
-"""Unauthenticated calls moto allows: create_user, create_access_key, put_user_policy, create_bucket."""
 RAY_CPUS = 2
 OBJECTS = SIX_BUILTINS[:3]
 """capsule, cone, torus: at 2 rotations, 6 tasks, enough for a kill to land between two of them."""
@@ -77,96 +71,15 @@ FAILURE_BOUND = 120.0
 WRONG_SECRET = f"wrong-secret-{uuid.uuid4().hex}"
 
 
-@dataclass(frozen=True)
-class S3Server:
-    endpoint: str
-    key_id: str
-    secret: str
-
-    def client(self, key_id: str | None = None, secret: str | None = None) -> Any:
-        import boto3
-
-        return boto3.client(
-            "s3",
-            endpoint_url=self.endpoint,
-            region_name=REGION,
-            aws_access_key_id=key_id or self.key_id,
-            aws_secret_access_key=secret or self.secret,
-        )
-
-    def keys(self, prefix: str) -> list[str]:
-        """Every object key under a prefix, sorted (straight from the server: no s3fs cache)."""
-        pages = self.client().get_paginator("list_objects_v2").paginate(Bucket=BUCKET, Prefix=prefix)
-        return sorted(item["Key"] for page in pages for item in page.get("Contents", []))
-
-
-def unused_port() -> int:
-    """A loopback port nothing listens on (bound and released)."""
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
-
-
-def bootstrap(endpoint: str) -> tuple[str, str]:
-    """An IAM user allowed s3:*, its access key, and the bucket: moto's unauthenticated calls."""
-    import boto3
-
-    anonymous = {
-        "endpoint_url": endpoint,
-        "region_name": REGION,
-        "aws_access_key_id": "bootstrap",
-        "aws_secret_access_key": "bootstrap",
-    }
-    iam = boto3.client("iam", **anonymous)
-    iam.create_user(UserName="datagen")
-    key = iam.create_access_key(UserName="datagen")["AccessKey"]
-    policy = {"Version": "2012-10-17", "Statement": [{"Effect": "Allow", "Action": "s3:*", "Resource": "*"}]}
-    iam.put_user_policy(UserName="datagen", PolicyName="s3", PolicyDocument=json.dumps(policy))
-    boto3.client("s3", **anonymous).create_bucket(Bucket=BUCKET)
-    return str(key["AccessKeyId"]), str(key["SecretAccessKey"])
-
-
 @pytest.fixture(scope="module")
-def s3_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
-    """moto's server on a free loopback port, authentication on after the bootstrap calls."""
+def s3_server(s3_store: S3Server) -> S3Server:
+    """Each store in turn (moto, then SeaweedFS: `tests/conftest.py`); authentication is on: an
+    unknown key is refused."""
     import botocore.exceptions
 
-    folder = tmp_path_factory.mktemp("moto")
-    port = unused_port()
-    endpoint = f"http://127.0.0.1:{port}"
-    env = {**os.environ, "INITIAL_NO_AUTH_ACTION_COUNT": str(BOOTSTRAP_CALLS)}
-    with open(folder / "moto.log", "wb") as log:
-        process = subprocess.Popen(
-            [sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
-            stdout=log,
-            stderr=subprocess.STDOUT,
-            env=env,
-        )
-        try:
-
-            def answers() -> bool:
-                assert process.poll() is None, (folder / "moto.log").read_text(errors="replace")
-                try:
-                    with urllib.request.urlopen(f"{endpoint}/moto-api/", timeout=2) as response:
-                        return bool(response.status == 200)
-                except OSError:
-                    return False
-
-            wait_until(answers, timeout=90, interval=0.2, what="moto's server to answer")
-            key_id, secret = bootstrap(endpoint)
-            server = S3Server(endpoint, key_id, secret)
-            # authentication is on: an unknown key is refused, the user's key is accepted
-            with pytest.raises(botocore.exceptions.ClientError):
-                server.client("AKIAUNKNOWN000000000", "not-a-secret").list_objects_v2(Bucket=BUCKET)
-            assert server.keys("") == []
-            yield server
-        finally:
-            process.terminate()
-            try:
-                process.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait(timeout=30)
+    with pytest.raises(botocore.exceptions.ClientError):
+        s3_store.client("AKIAUNKNOWN000000000", "not-a-secret").list_objects_v2(Bucket=BUCKET)
+    return s3_store
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,141 @@
+"""`datagen shards repair`: re-run exactly the damaged tasks of a dataset, then finalise its index.
+
+The damaged tasks are those `storage.validate` names (a shard with a lost or truncated chunk file,
+an unreadable fragment or commit record, a commit record lost from under the finalised index) plus
+the tasks the ledger has done that have no commit record left. Their records are withdrawn
+(`storage.repair.withdraw`: readers then serve the sound rest, nothing half written), the ledger
+makes exactly them pending again, and the job's own driver (`run_job`) re-runs them with the job's
+stored config and objects: by determinism the same samples as before the damage. A dataset whose
+only problem is its merged index just gets it finalised again; a sound one is left untouched.
+
+The tasks come from the job ledger that made the dataset (its config and objects are there), so
+repair runs where the job was submitted: the same ``--home`` (on a cluster, the head).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+from datagen.engine.driver import ProgressCallback, run_job
+from datagen.engine.serve import ledger_for
+from datagen.settings import RunSettings
+from jobs.ledger import DONE, Job, Ledger
+from storage import Location, StorageError, check_store, finalise, open_location, read_commits, validate_dataset
+from storage.repair import Findings, sort_problems, withdraw
+
+LOST_COMMIT = "commit record missing although the ledger has the task done"
+
+
+@dataclass(frozen=True)
+class RepairSummary:
+    url: str
+    repaired: dict[str, str] = field(default_factory=dict)
+    """task id -> the first problem that made it re-run."""
+    index_problems: list[str] = field(default_factory=list)
+    """Problems of the merged index alone (mended by finalising it again)."""
+    jobs: list[str] = field(default_factory=list)
+    samples: int = 0
+    """Samples of the repaired dataset."""
+
+    @property
+    def sound(self) -> bool:
+        """Nothing was wrong: nothing was touched."""
+        return not self.repaired and not self.index_problems
+
+
+def repair_dataset(url: str, settings: RunSettings, progress: ProgressCallback | None = None) -> RepairSummary:
+    """Find the damage, withdraw and re-run the damaged tasks, finalise, check again.
+
+    Raises `StorageError` when the store cannot be used, when a problem cannot be mended by
+    re-running tasks (``dataset.json`` damaged), when no job of the ledger made a damaged task, or
+    when the dataset is still not sound afterwards.
+    """
+    options = settings.storage_options(url)
+    location = open_location(url, options)
+    check_store(location)
+    found = sort_problems(validate_dataset(url, full=True, storage_options=options).problems)
+    if found.other:
+        raise StorageError(f"{url}: cannot be repaired by re-running tasks: {found.other[0]}")
+    ledger = ledger_for(settings)
+    try:
+        jobs = _jobs_writing(ledger, url)
+        redo = {task: lines[0] for task, lines in found.tasks.items()} | _lost_commits(ledger, jobs, location)
+        if not redo and not found.index:
+            return RepairSummary(url, jobs=[j.job_id for j in jobs], samples=_samples(url, options))
+        owners = _owners(ledger, jobs, sorted(redo), url, settings, found)
+        withdraw(location, sorted(redo))
+        for job_id in sorted(set(owners.values())):
+            ledger.redo_tasks(job_id, sorted(task for task, owner in owners.items() if owner == job_id))
+            run_job(
+                ledger,
+                job_id,
+                address=settings.ray_address,
+                num_cpus=settings.num_workers,
+                storage_options=options,
+                progress=progress,
+                refiner_gpus=settings.refiner_gpus,
+            )
+        finalise(location)
+        not_done = sorted(
+            task.task_id
+            for job_id in set(owners.values())
+            for task in ledger.tasks(job_id)
+            if task.task_id in redo and task.state != DONE
+        )
+        if not_done:
+            raise StorageError(f"{url}: the re-run of tasks {not_done} did not finish; see `datagen status`")
+        after = validate_dataset(url, full=True, storage_options=options).problems
+        if after:
+            raise StorageError(f"{url}: still not sound after the repair ({len(after)} problems): {after[0]}")
+        return RepairSummary(url, redo, found.index, sorted(set(owners.values())), _samples(url, options))
+    finally:
+        ledger.close()
+
+
+def _where(url: str) -> tuple[str, str]:
+    """(protocol, root) of a dataset URL, so a relative local path matches the ledger's absolute one."""
+    location = open_location(url)
+    protocol = location.fs.protocol if isinstance(location.fs.protocol, str) else location.fs.protocol[0]
+    root = os.path.abspath(location.root) if location.is_local else location.root.strip("/")
+    return protocol, root
+
+
+def _jobs_writing(ledger: Ledger, url: str) -> list[Job]:
+    where = _where(url)
+    return [job for job in ledger.jobs() if job.out and _where(job.out) == where]
+
+
+def _lost_commits(ledger: Ledger, jobs: list[Job], location: Location) -> dict[str, str]:
+    """Tasks the ledger has done whose commit record is gone (never named by a finalised index,
+    so `storage.validate` cannot see that they are missing)."""
+    committed, _ = read_commits(location)
+    names = {r.task_id for r in committed}
+    return {
+        task.task_id: LOST_COMMIT
+        for job in jobs
+        for task in ledger.tasks(job.job_id)
+        if task.state == DONE and task.task_id not in names
+    }
+
+
+def _owners(
+    ledger: Ledger, jobs: list[Job], tasks: list[str], url: str, settings: RunSettings, found: Findings
+) -> dict[str, str]:
+    """task id -> the job that plans it; `StorageError` for a task no job of this ledger plans."""
+    owners = {task.task_id: job.job_id for job in jobs for task in ledger.tasks(job.job_id)}
+    unknown = [task for task in tasks if task not in owners]
+    if unknown:
+        where = f"no job in the ledger at {settings.home} writing this dataset"
+        example = found.tasks.get(unknown[0], [""])[0]
+        raise StorageError(
+            f"{url}: {where} made task {unknown[0]} ({example}); run `datagen shards repair` where the job was "
+            "submitted (its --home / DATAGEN_HOME; on a cluster, the head), or re-submit its objects to a new --out"
+        )
+    return {task: owners[task] for task in tasks}
+
+
+def _samples(url: str, options: dict[str, object]) -> int:
+    from storage import open_dataset
+
+    return len(open_dataset(url, dict(options)))
