@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 from support import storage as fx
+from support.engine import submit_args
 from support.s3_servers import BUCKET, S3Server, unused_port
 from typer.testing import CliRunner
 
@@ -55,17 +56,7 @@ def commands(url: str, folder: Path, inputs: Path) -> dict[str, list[str]]:
         "relabel": ["shards", "relabel", url, "--out", out, "--alpha", "3"],
         "export": ["shards", "export", url, str(folder / "export"), "--layout", "air", "--points", "8"],
         "repair": ["shards", "repair", url, "--home", str(folder / "home")],
-        "submit": [
-            "submit",
-            "--objects",
-            str(inputs / "objects.txt"),
-            "--config",
-            str(inputs / "fast.toml"),
-            "--out",
-            url,
-            "--home",
-            str(folder / "home"),
-        ],
+        "submit": submit_args(inputs, url, folder / "home"),
     }
 
 

@@ -67,6 +67,12 @@ def builtin_lines(names: Sequence[str]) -> list[str]:
     return [f"builtin:{name}" for name in names]
 
 
+def submit_args(inputs: Path, out: str, home: Path) -> list[str]:
+    """`datagen submit` of the ``objects.txt`` and ``fast.toml`` in ``inputs`` to ``out``, ledger in ``home``."""
+    files = ["--objects", str(inputs / "objects.txt"), "--config", str(inputs / "fast.toml")]
+    return ["submit", *files, "--out", out, "--home", str(home)]
+
+
 # ---------------------------------------------------------------------------------------------------------
 # the ledger from outside
 # ---------------------------------------------------------------------------------------------------------

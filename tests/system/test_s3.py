@@ -40,6 +40,7 @@ from support.engine import (
     shard_dirs,
     start_local_ray,
     stop_local_ray,
+    submit_args,
     summarize,
     wait_until,
     write_config,
@@ -114,20 +115,6 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     write_config(folder / "fast.toml", rotations=2)
     write_objects(folder / "objects.txt", builtin_lines(OBJECTS))
     return folder
-
-
-def submit_args(inputs: Path, out: str, home: Path) -> list[str]:
-    return [
-        "submit",
-        "--objects",
-        str(inputs / "objects.txt"),
-        "--config",
-        str(inputs / "fast.toml"),
-        "--out",
-        out,
-        "--home",
-        str(home),
-    ]
 
 
 @dataclass(frozen=True)
