@@ -10,7 +10,7 @@ from storage.export import export_air
 from storage.location import DamagedFile, Location, StorageError, is_s3, open_location
 from storage.reader import Dataset, LabelAmbiguity, finalise, load_index, open_dataset
 from storage.shards import ShardReader
-from storage.store_errors import check_store, is_store_failure, storage_failure, store_errors
+from storage.store_errors import check_store, is_store_failure, is_transient, storage_failure, store_errors
 from storage.validate import SAMPLED_ROWS_PER_SHARD, Validation, validate, validate_dataset
 from storage.writer import (
     ShardPayload,
@@ -45,6 +45,7 @@ __all__ = [
     "init_dataset",
     "is_s3",
     "is_store_failure",
+    "is_transient",
     "load_index",
     "nearest_cover",
     "open_dataset",

@@ -13,6 +13,7 @@ damaged dataset.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 from collections.abc import Iterator
 from typing import Any
@@ -67,9 +68,17 @@ def classify(error: BaseException) -> str | None:
             return REFUSED
         if type(link).__name__ in _UNREACHABLE_NAMES or isinstance(link, ConnectionError | TimeoutError):
             return UNREACHABLE
+        if isinstance(link, OSError) and link.errno == errno.EREMOTEIO:  # s3fs's form of a 5xx answer
+            return UNREACHABLE
         if isinstance(link, PermissionError):
             return REFUSED
     return None
+
+
+def is_transient(error: BaseException) -> bool:
+    """A store failure that waiting may end (unreachable, a 5xx answer), not a refusal or a missing
+    bucket: what a running task waits out."""
+    return classify(error) == UNREACHABLE or (classify(error) is None and is_store_failure(error))
 
 
 def is_store_failure(error: BaseException) -> bool:

@@ -10,7 +10,6 @@ task fails.
 
 from __future__ import annotations
 
-import errno
 import functools
 import sys
 import time
@@ -31,7 +30,7 @@ from schemas.config import GenerationConfig
 from schemas.index import FailureRecord
 from schemas.jobs import ObjectRef, TaskSpec
 from schemas.version import SCHEMA_VERSION
-from storage import is_s3, is_store_failure, open_location, read_commit, write_failure, write_task
+from storage import is_s3, is_transient, open_location, read_commit, write_failure, write_task
 
 T = TypeVar("T")
 
@@ -113,20 +112,6 @@ def execute_task(
     return TaskOutcome(spec.task_id, True, record.num_samples, record.attempt_id, seconds=time.perf_counter() - started)
 
 
-def _transient_store_failure(error: BaseException) -> bool:
-    """The store failed (unreachable, a botocore or aiohttp error) or answered 5xx (s3fs raises an
-    OSError with errno EREMOTEIO for an internal server error), anywhere along the cause chain; not
-    a refusal (s3fs raises PermissionError for refused credentials: waiting does not change them)."""
-    chain: list[BaseException] = []
-    link: BaseException | None = error
-    while link is not None and len(chain) < 8:
-        chain.append(link)
-        link = link.__cause__ or link.__context__
-    if any(isinstance(link, PermissionError) for link in chain):
-        return False
-    return is_store_failure(error) or any(isinstance(link, OSError) and link.errno == errno.EREMOTEIO for link in chain)
-
-
 def _store_retried(action: Callable[[], T], remote: bool = True) -> T:
     """``action()``, tried again after each of `STORE_RETRY_WAITS` while a remote store fails under it."""
     if not remote:
@@ -135,7 +120,7 @@ def _store_retried(action: Callable[[], T], remote: bool = True) -> T:
         try:
             return action()
         except Exception as error:
-            if not _transient_store_failure(error):
+            if not is_transient(error):
                 raise
             # one line in the worker's log (Ray keeps it per worker process): the wait is visible
             first = (str(error).strip().splitlines() or [type(error).__name__])[0][:200]
