@@ -36,12 +36,14 @@ RUN apt-get update \
 
 WORKDIR /opt/datagen
 COPY pyproject.toml README.md SCHEMA.md ./
+COPY reader ./reader
 COPY datagen ./datagen
 COPY schemas ./schemas
 COPY storage ./storage
 COPY jobs ./jobs
 COPY examples ./examples
-RUN python -m pip install ".[s3,poisson,cluster]" && python -c "import datagen, ray, embreex, highspy, s3fs, open3d"
+# ./reader packages storage and schemas (the light distribution datagen depends on): one resolve for both.
+RUN python -m pip install ./reader ".[s3,poisson,cluster]" && python -c "import datagen, ray, embreex, highspy, s3fs, open3d"
 
 RUN useradd --create-home --uid 1000 datagen && mkdir -p /var/lib/datagen && chown datagen /var/lib/datagen
 USER datagen

@@ -1,4 +1,4 @@
-"""Benchmark: how many input cases the long-tail sampling draws per task (PIPELINE.md section 6).
+"""Benchmark: how many input cases the long-tail sampling draws per task (docs/pipeline.md section 6).
 
     python benchmarks/cases.py [--meshes DIR] [--seed 0]
 
@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 
 from datagen.pipeline.cases import greedy_trajectories  # noqa: E402
 from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
-from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
+from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, mesh_file_spec  # noqa: E402
 from datagen.pipeline.refine import make_refiner  # noqa: E402
 from datagen.pipeline.task import run_task  # noqa: E402
 from datagen.pipeline.viewspace import build_view_space  # noqa: E402
@@ -44,13 +44,7 @@ MODES = ("targets", "pixels")
 
 
 def mesh_spec(path: Path) -> ObjectSpec:
-    options = ObjectOptions(size=SIZE_M)
-    return ObjectSpec(
-        source=str(path),
-        name=path.stem,
-        options=options,
-        object_id=file_object_id(path.read_bytes(), options),
-    )
+    return mesh_file_spec(path, ObjectOptions(size=SIZE_M))
 
 
 def main() -> None:

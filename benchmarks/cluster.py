@@ -36,32 +36,18 @@ from collections import Counter  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from end_to_end import loadavg, machine_busy_ticks, task_seconds  # noqa: E402
+
 from datagen import api  # noqa: E402
 from datagen.pipeline.objects.objects_file import read_objects_file  # noqa: E402
 from datagen.settings import RunSettings  # noqa: E402
 from jobs.ledger import DONE, Ledger  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
-from storage import (  # noqa: E402
-    ShardReader,
-    committed_tasks,
-    open_location,
-)
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 OBJECT_STORE_BYTES = 100 * 1024**2
 TICKS = os.sysconf("SC_CLK_TCK")
 WARM_UP_OBJECTS = ("builtin:capsule", "builtin:cone")
-
-
-def loadavg() -> str:
-    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
-
-
-def machine_busy_ticks() -> int:
-    """Busy jiffies of all CPUs since boot: user + nice + system + irq + softirq + steal."""
-    fields = [int(v) for v in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
-    user, nice, system, _idle, _iowait, irq, softirq, steal = (fields + [0] * 8)[:8]
-    return user + nice + system + irq + softirq + steal
 
 
 def own_tree_ticks() -> dict[int, int]:
@@ -86,16 +72,6 @@ def own_tree_ticks() -> dict[int, int]:
             tree[pid] = table[pid][1]
         stack.extend(children.get(pid, []))
     return tree
-
-
-def task_seconds(url: str) -> list[float]:
-    """Each committed task's own compute seconds (its timed steps, from the shard metadata)."""
-    location = open_location(url)
-    seconds = []
-    for record in committed_tasks(location):
-        meta = ShardReader(location, record.shard).attributes.metadata
-        seconds.append(float(sum(meta["seconds"].values())))
-    return seconds
 
 
 @dataclass(frozen=True)

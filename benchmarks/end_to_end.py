@@ -141,6 +141,7 @@ class Result:
 
 
 def task_seconds(url: str) -> list[float]:
+    """Each committed task's own compute seconds (its timed steps, from the shard metadata)."""
     location = open_location(url)
     seconds = []
     for record in committed_tasks(location):

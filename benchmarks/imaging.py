@@ -47,7 +47,7 @@ from support.open3d_reference import Intrinsics, Open3DCaster, pixel_rays, targe
 from datagen.pipeline.ground_truth import GroundTruth, sample_ground_truth  # noqa: E402
 from datagen.pipeline.imaging import SPHERE_MARGIN, image_task  # noqa: E402
 from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
-from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
+from datagen.pipeline.objects.spec import ObjectOptions, mesh_file_spec  # noqa: E402
 from datagen.pipeline.random_streams import Purpose, stream  # noqa: E402
 from datagen.pipeline.raycast import RayCaster  # noqa: E402
 from datagen.pipeline.viewspace import build_view_space  # noqa: E402
@@ -77,14 +77,24 @@ def median_seconds(functions: list[Callable[[], object]], repeats: int) -> list[
     return [statistics.median(t) for t in times]
 
 
+def timing_row(name: str, mode: str, faces: str, rays: float, ours_s: float, cast_s: float, o3d_s: float) -> list[str]:
+    """One row of the table: the three timings, their ratios to Open3D's and our rays per second."""
+    return [
+        name,
+        mode,
+        faces,
+        f"{int(rays):,}",
+        f"{ours_s:.3f}",
+        f"{cast_s:.3f}",
+        f"{o3d_s:.3f}",
+        f"{ours_s / o3d_s:.2f}",
+        f"{cast_s / o3d_s:.2f}",
+        f"{rays / ours_s / 1e6:.1f}",
+    ]
+
+
 def prepare(path: Path, config: GenerationConfig):
-    options = ObjectOptions(size=SIZE_M)
-    spec = ObjectSpec(
-        source=str(path),
-        name=path.stem,
-        options=options,
-        object_id=file_object_id(path.read_bytes(), options),
-    )
+    spec = mesh_file_spec(path, ObjectOptions(size=SIZE_M))
     prepared = prepare_object(spec, config)
     vertices = prepared.task_vertices(0, config.rotations)
     ground_truth = sample_ground_truth(
@@ -172,20 +182,7 @@ def main() -> int:
             if imaging.rays_cast != rays:
                 raise SystemExit(f"{path.name} {mode}: ours cast {imaging.rays_cast} rays, the reference {rays}")
             ours_s, cast_s, o3d_s = median_seconds([ours, our_cast, theirs], args.repeats)
-            rows.append(
-                [
-                    path.name,
-                    mode,
-                    str(len(faces)),
-                    f"{rays:,}",
-                    f"{ours_s:.3f}",
-                    f"{cast_s:.3f}",
-                    f"{o3d_s:.3f}",
-                    f"{ours_s / o3d_s:.2f}",
-                    f"{cast_s / o3d_s:.2f}",
-                    f"{rays / ours_s / 1e6:.1f}",
-                ]
-            )
+            rows.append(timing_row(path.name, mode, str(len(faces)), rays, ours_s, cast_s, o3d_s))
             total = totals[mode]
             total[0] += rays
             total[1] += ours_s
@@ -198,20 +195,7 @@ def main() -> int:
         ("TOTAL", grand),
     ]:
         name, mode = [*label.split(), ""][:2] if label != "TOTAL" else ("TOTAL", "both")
-        rows.append(
-            [
-                name,
-                mode,
-                "",
-                f"{int(rays):,}",
-                f"{ours_s:.3f}",
-                f"{cast_s:.3f}",
-                f"{o3d_s:.3f}",
-                f"{ours_s / o3d_s:.2f}",
-                f"{cast_s / o3d_s:.2f}",
-                f"{rays / ours_s / 1e6:.1f}",
-            ]
-        )
+        rows.append(timing_row(name, mode, "", rays, ours_s, cast_s, o3d_s))
     print()
     print(
         "32-view imaging, single-threaded, CPU seconds, median of "

@@ -1,4 +1,4 @@
-"""Benchmark: exact labels (PIPELINE.md section 7) against a naive HiGHS model, on real meshes.
+"""Benchmark: exact labels (docs/pipeline.md section 7) against a naive HiGHS model, on real meshes.
 
     python benchmarks/labels.py [--meshes DIR] [--alphas 1 5 10] [--naive-stride A=S ...]
 
@@ -44,11 +44,11 @@ import numpy as np  # noqa: E402
 from datagen.pipeline.cases import long_tail_cases  # noqa: E402
 from datagen.pipeline.coverage import coverage_table, filter_to_ground_truth  # noqa: E402
 from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
-from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, file_object_id  # noqa: E402
+from datagen.pipeline.objects.spec import ObjectOptions, mesh_file_spec  # noqa: E402
 from datagen.pipeline.random_streams import Purpose, stream  # noqa: E402
 from datagen.pipeline.refine import RefineRequest, make_refiner, refined_keys  # noqa: E402
 from datagen.pipeline.scanning import scan_task  # noqa: E402
-from datagen.pipeline.setcover import CoverResult, TaskCover  # noqa: E402
+from datagen.pipeline.setcover import CoverResult, TaskCover, cover_model  # noqa: E402
 from datagen.pipeline.viewspace import build_view_space  # noqa: E402
 from schemas.config import GenerationConfig  # noqa: E402
 
@@ -85,37 +85,8 @@ def naive_model(
     universe: np.ndarray, columns: list[int], costs: list[float], cardinality: int | None, maximise: bool
 ) -> highspy.HighsLp:
     """Binary model over ``columns``: one row per key (sum of its covering columns >= 1), an
-    optional row sum(x) == cardinality."""
-    bits = ((universe[:, None] >> np.array(columns, dtype=np.uint64)[None, :]) & np.uint64(1)).astype(bool)
-    starts = np.concatenate([[0], np.cumsum(bits.sum(axis=1))])
-    index = np.nonzero(bits)[1]
-    num_rows = int(universe.size)
-    row_lower = np.ones(num_rows)
-    row_upper = np.full(num_rows, highspy.kHighsInf)
-    if cardinality is not None:
-        starts = np.append(starts, starts[-1] + len(columns))
-        index = np.concatenate([index, np.arange(len(columns))])
-        row_lower = np.append(row_lower, float(cardinality))
-        row_upper = np.append(row_upper, float(cardinality))
-        num_rows += 1
-    m = len(columns)
-    lp = highspy.HighsLp()
-    lp.num_col_ = m
-    lp.num_row_ = num_rows
-    lp.col_cost_ = np.asarray(costs, dtype=np.float64)
-    lp.col_lower_ = np.zeros(m)
-    lp.col_upper_ = np.ones(m)
-    lp.row_lower_ = row_lower
-    lp.row_upper_ = row_upper
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
-    lp.a_matrix_.start_ = starts.astype(np.int32)
-    lp.a_matrix_.index_ = index.astype(np.int32)
-    lp.a_matrix_.value_ = np.ones(index.size)
-    lp.a_matrix_.num_col_ = m
-    lp.a_matrix_.num_row_ = num_rows
-    lp.integrality_ = [highspy.HighsVarType.kInteger] * m
-    lp.sense_ = highspy.ObjSense.kMaximize if maximise else highspy.ObjSense.kMinimize
-    return lp
+    optional row sum(x) == cardinality (`setcover.cover_model` on the unreduced keys)."""
+    return cover_model(universe, columns, costs, maximise=maximise, cardinality=cardinality)
 
 
 def naive_solve(lp: highspy.HighsLp, time_limit: float) -> list[float] | None:
@@ -189,10 +160,7 @@ class AlphaStats:
 def mesh_views(path: Path, config: GenerationConfig) -> tuple[list[np.ndarray], list[int], float]:
     """P_i (refiner none, filtered to P_gt) and the long-tail cases of task (mesh, rotation 0)."""
     started = time.perf_counter()
-    options = ObjectOptions(size=SIZE_M)
-    spec = ObjectSpec(
-        source=str(path), name=path.stem, options=options, object_id=file_object_id(path.read_bytes(), options)
-    )
+    spec = mesh_file_spec(path, ObjectOptions(size=SIZE_M))
     prepared = prepare_object(spec, config)
     scan = scan_task(prepared, 0, config, build_view_space(config.view_space))
     observations = list(scan.observations)

@@ -1,6 +1,6 @@
 """datagen: exact, reproducible training data for one-shot view planning.
 
-The pipeline modules are plain functions on numpy arrays (``design/PIPELINE.md``); the engine and
+The pipeline modules are plain functions on numpy arrays (``docs/pipeline.md``); the engine and
 the CLI compose them.
 """
 

@@ -1,6 +1,6 @@
 """The Parquet index (one row per sample) and the records that sit beside the shards.
 
-The index lets a reader filter and split without opening any shard: every column of PIPELINE.md
+The index lets a reader filter and split without opening any shard: every column of docs/pipeline.md
 section 8's metadata, plus where the sample lives (shard path relative to the dataset root, row).
 Masks are stored as uint64 bit masks (bit i = view i).
 """
@@ -73,6 +73,43 @@ def index_schema_version(schema: pa.Schema) -> int | None:
 
 VOLATILE_COLUMNS = ("solver_seconds", "attempt_id", "shard")
 
+TASK_STEPS = (
+    "prepare",
+    "ground_truth",
+    "imaging",
+    "refine_views",
+    "cases",
+    "refine_cases",
+    "coverage",
+    "labels",
+    "write",
+)
+"""The timed steps of one task, in the order they run: preparing the object (0 when the worker had
+it prepared for another rotation), P_gt, imaging the n views, refining each single view, drawing the
+long-tail cases, refining each multi-view case, counting P_full's coverage, the exact labels, and
+building and writing the shard and index fragment."""
+
+
+class StepSeconds(BaseModel):
+    """CPU-seconds (the worker process's: its helper threads, Embree's or torch's, included) and
+    wall seconds of one step."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    cpu: float
+    wall: float
+
+
+class TaskTimings(BaseModel):
+    """Where one task's time went (`TASK_STEPS`); volatile, so kept out of samples and hashes."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    steps: dict[str, StepSeconds]
+    total: StepSeconds
+    """The whole task in the worker, from its start to its commit record: the steps and what lies
+    between them (the committed check, loading the refiner, which a worker process does once)."""
+
 
 class CommitRecord(BaseModel):
     """Written last and atomically: names the one attempt of a task that readers follow."""
@@ -87,6 +124,9 @@ class CommitRecord(BaseModel):
     index_fragment: str
     """Index fragment path relative to the dataset root."""
     num_samples: int
+    timings: TaskTimings | None = None
+    """Per-step time of the attempt that committed; None in datasets written before it was kept (and
+    in relabelled ones, whose tasks are not computed again)."""
 
 
 class FailureRecord(BaseModel):
@@ -100,3 +140,11 @@ class FailureRecord(BaseModel):
     origin: str
     """Where the object was listed: ``FILE:LINE``."""
     message: str
+
+
+def failure_record(task_id: str, message: str, *, object_name: str = "", origin: str = "") -> FailureRecord:
+    """The `FailureRecord` this datagen writes: a task's (its object's name and ``FILE:LINE``) or an
+    object line's that never became a task (no name)."""
+    return FailureRecord(
+        schema_version=SCHEMA_VERSION, task_id=task_id, object_name=object_name, origin=origin, message=message
+    )

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# Create .venv with the CPU build of torch, datagen (editable, with test extras) and the osvp training
-# package beside it (osvp/, its own distribution; it needs the root's storage and schemas).
+# Create .venv with the CPU build of torch, the dataset reader (reader/: storage and schemas), datagen
+# (editable, with test extras) and the osvp training package (osvp/, its own distribution).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 python3 -m venv .venv
@@ -8,5 +8,6 @@ python3 -m venv .venv
 python -m pip install -q --upgrade pip
 # torch first and pinned: an unpinned torch pulls a multi-GB CUDA build.
 python -m pip install -q "torch==2.13.0"
-python -m pip install -q -e ".[test]"
-python -m pip install -q -e "./osvp[test]"
+# One resolve for the three distributions of the checkout: datagen-reader (storage, schemas), the
+# generator (datagen, needs the reader) and the osvp trainer (needs only the reader).
+python -m pip install -q -e ./reader -e ".[test]" -e "./osvp[test]"

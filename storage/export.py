@@ -5,7 +5,7 @@
 ``train_split`` and ``test_split`` (object folder names, one per line, split by object) and the
 provenance of every choice that differs from the authors' (``PROVENANCE.md``, ``provenance.json``).
 
-What their code needs, and what this module therefore guarantees (authors-pipeline.md 7.2):
+What their code needs, and what this module therefore guarantees (docs/authors-code.md section 7.2):
 
 - companions are found by replacing "cloud" in the whole path, so neither the output path nor an
   object folder may contain it;
@@ -38,6 +38,7 @@ import numpy.typing as npt
 
 from storage.location import StorageError
 from storage.reader import Dataset, open_dataset
+from storage.samples import mask_bits
 
 LAYOUTS = ("air",)
 """Layouts `datagen shards export --layout` writes."""
@@ -312,6 +313,8 @@ def _write_samples(
             else:
                 replace = keys.shape[0] < num_points
                 resampled += replace
+                # The export's own stream, (seed, sample id), part of its documented format: not the
+                # (seed, epoch, index) streams of `storage.samples`, which depend on a dataset's order.
                 chosen = sample_rng(seed, sample_ids[i]).choice(keys.shape[0], size=num_points, replace=replace)
                 folder = staging / folders[objects[i]] / rotation_folders[int(rotations[i])]
                 if folder not in made:
@@ -342,8 +345,8 @@ def _write_sample(
     folder: Path, row: int, points: npt.NDArray[np.float32], view_state: int, label: int, target: Path
 ) -> None:
     cloud = "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in points.tolist())
-    state = "".join(f"{(view_state >> v) & 1}\n" for v in range(AUTHORS_VIEWS))
-    ids = "".join(f"{v}\n" for v in range(AUTHORS_VIEWS) if label >> v & 1)
+    state = "".join(f"{bit}\n" for bit in mask_bits(view_state, AUTHORS_VIEWS).astype(int).tolist())
+    ids = "".join(f"{v}\n" for v in np.flatnonzero(mask_bits(label, AUTHORS_VIEWS)).tolist())
     _write_text(folder / f"cloud_{row}.txt", cloud, target)
     _write_text(folder / f"state_{row}.txt", state, target)
     _write_text(folder / f"ids_{row}.txt", ids, target)

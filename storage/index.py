@@ -34,9 +34,10 @@ Disagreement = tuple[str, str]
 """(task id, what disagrees) for one task."""
 
 
-def finalise(location: Location) -> pa.Table:
-    """Merge the committed fragments into ``index.parquet`` (with the commits it covers)."""
-    commits = committed_tasks(location)
+def finalise(location: Location, commits: Sequence[CommitRecord] | None = None) -> pa.Table:
+    """Merge the committed fragments into ``index.parquet`` (with the commits it covers); ``commits``
+    are the dataset's commit records when the caller read them already."""
+    commits = committed_tasks(location) if commits is None else commits
     table = merge_fragments(location, commits)
     location.write_atomic(INDEX_FILE, parquet_bytes(table))
     coverage = {r.task_id: r.attempt_id for r in commits}

@@ -259,7 +259,8 @@ def open_location(url: str, storage_options: dict[str, Any] | None = None) -> Lo
         fs, root = fsspec.core.url_to_fs(url, **storage_options)
     except ImportError as exc:
         if is_s3(url):
-            raise StorageError(f"{url}: S3 needs s3fs; install it with: pip install 'datagen[s3]'") from None
+            fix = "pip install s3fs (the [s3] extra of datagen or datagen-reader)"
+            raise StorageError(f"{url}: S3 needs s3fs; install it with: {fix}") from None
         raise StorageError(f"{url}: unsupported dataset URL ({exc}); use a local path or an fsspec URL") from None
     except ValueError as exc:
         raise StorageError(f"{url}: unsupported dataset URL ({exc}); use a local path or an fsspec URL") from None

@@ -29,6 +29,7 @@ from storage.index import INDEX_FILE as INDEX_FILE
 from storage.index import finalise as finalise
 from storage.index import load_index
 from storage.location import Location, StorageError, open_location
+from storage.samples import key_centres, mask_bits, split_by_object
 from storage.shards import ShardReader
 from storage.store_errors import check_store, is_store_failure, storage_failure
 from storage.writer import read_failures
@@ -121,8 +122,8 @@ class Dataset:
         return shard.key_set(source, int(self._row_col[i]))
 
     def centres(self, keys: npt.NDArray[np.integer]) -> npt.NDArray[np.float32]:
-        """Voxel centres (float32) of integer keys."""
-        return ((keys.astype(np.float64) + 0.5 - self._offset) * self._voxel).astype(np.float32)
+        """Voxel centres (float32 metres) of integer keys (`storage.samples.key_centres`)."""
+        return key_centres(keys, self._voxel, self._offset)
 
     def masks(self, i: int) -> tuple[int, int]:
         """(view_state, label) of sample i as integer bit masks."""
@@ -174,14 +175,14 @@ class Dataset:
             "sample_id": self.index.column("sample_id")[i].as_py(),
             "points": self.centres(self.keys(i, "points")),
             "observed": self.centres(self.keys(i, "observed")),
-            "view_state": mask_to_bools(view_state, self.num_views),
-            "label": mask_to_bools(label, self.num_views),
+            "view_state": mask_bits(view_state, self.num_views),
+            "label": mask_bits(label, self.num_views),
         }
         if self.has_ambiguity:
             found = self.ambiguity(i)
-            sample["support"] = mask_to_bools(found.support, self.num_views)
+            sample["support"] = mask_bits(found.support, self.num_views)
             sample["marginals"] = cover_marginals(found.covers, self.num_views).astype(np.float32)
-            sample["covers"] = np.stack([mask_to_bools(int(c), self.num_views) for c in found.covers])
+            sample["covers"] = mask_bits(found.covers, self.num_views)
             sample["min_covers"] = found.count
             sample["min_covers_exact"] = found.exact
         return sample
@@ -223,14 +224,15 @@ class Dataset:
         return sorted(set(self.index.column("object_id").to_pylist()))
 
     def split(self, val: float = 0.2, seed: int = 0) -> tuple[Dataset, Dataset]:
-        """(train, val) by object, never by sample: every sample of an object lands on one side."""
-        if not 0.0 <= val <= 1.0:
-            raise ValueError(f"val = {val} must be in [0, 1]")
-        objects = self.object_ids()
-        order = np.random.default_rng(np.random.SeedSequence([seed, len(objects)])).permutation(len(objects))
-        val_objects = {objects[i] for i in order[: round(val * len(objects))]}
-        in_val = np.array([o in val_objects for o in self.index.column("object_id").to_pylist()], dtype=bool)
-        return self.select(np.flatnonzero(~in_val)), self.select(np.flatnonzero(in_val))
+        """(train, val) by object, never by sample: every sample of an object lands on one side.
+
+        ``round(val * objects)`` objects are held out, and at least one whenever ``val`` > 0 (before,
+        a small fraction of few objects rounded to none); the draw is `storage.samples.split_by_object`'s,
+        the one osvp's object split makes. A ``val`` outside [0, 1] is a `storage.samples.SplitError`
+        (a ValueError).
+        """
+        train, held = split_by_object(self.index.column("object_id").to_pylist(), val, seed)
+        return self.select(train), self.select(held)
 
     # -- iteration ----------------------------------------------------------------------------
     def shard_blocks(self) -> list[npt.NDArray[np.int64]]:
@@ -284,4 +286,5 @@ class LabelAmbiguity:
 
 
 def mask_to_bools(mask: int, width: int) -> npt.NDArray[np.bool_]:
-    return np.array([(mask >> v) & 1 for v in range(width)], dtype=bool)
+    """One bool per view of a mask (bit v = view v): `storage.samples.mask_bits`."""
+    return mask_bits(mask, width)

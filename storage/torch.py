@@ -2,8 +2,10 @@
 sampler. Importing `storage` never imports torch; importing this module does.
 
 Resampling to ``num_points`` depends only on (seed, epoch, index), never on worker count or order,
-so two runs with the same seeds see identical tensors. Shard handles are opened lazily in each
-worker process (fork and spawn both work: the dataset pickles without them). A damaged dataset is a
+so two runs with the same seeds see identical tensors (`storage.samples`, the contract every reader
+shares: `storage.memory` and osvp give the same tensors for the same seed, epoch and index). Shard
+handles are opened lazily in each worker process (fork and spawn both work: the dataset pickles
+without them). A damaged dataset is a
 `storage.StorageError` naming the file and the fix, never a silently zeroed sample (`storage.reader`).
 """
 
@@ -18,6 +20,7 @@ from torch.utils.data import Dataset as TorchDataset
 from torch.utils.data import Sampler
 
 from storage.reader import Dataset, open_dataset
+from storage.samples import mask_bits, resample_keys
 
 
 class OSVPDataset(TorchDataset[dict[str, torch.Tensor]]):
@@ -58,21 +61,13 @@ class OSVPDataset(TorchDataset[dict[str, torch.Tensor]]):
 
     def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
         index = range(len(self))[index]  # negative indices as for any sequence
-        keys = self.dataset.keys(index, self.source)
-        rng = np.random.default_rng(np.random.SeedSequence([self.seed, self.epoch, index]))
-        if keys.shape[0] == 0:
-            chosen = np.zeros((self.num_points, 3), dtype=np.int16)
-        else:
-            replace = keys.shape[0] < self.num_points
-            # shuffle=False: the order of a point set carries nothing, and it is ~40% cheaper.
-            chosen = keys[rng.choice(keys.shape[0], size=self.num_points, replace=replace, shuffle=False)]
+        keys = resample_keys(self.dataset.keys(index, self.source), self.num_points, self.seed, self.epoch, index)
         view_state, label = self.dataset.masks(index)
         width = self.dataset.num_views
-        bits = np.arange(width, dtype=np.uint64)
         return {
-            "points": torch.from_numpy(self.dataset.centres(chosen)),
-            "view_state": torch.from_numpy(((np.uint64(view_state) >> bits) & np.uint64(1)).astype(np.float32)),
-            "label": torch.from_numpy(((np.uint64(label) >> bits) & np.uint64(1)).astype(np.float32)),
+            "points": torch.from_numpy(self.dataset.centres(keys)),
+            "view_state": torch.from_numpy(mask_bits(view_state, width).astype(np.float32)),
+            "label": torch.from_numpy(mask_bits(label, width).astype(np.float32)),
             "index": torch.tensor(index),
         }
 

@@ -25,7 +25,7 @@ import pyarrow as pa
 from pydantic import ValidationError
 
 from schemas.dataset import DATASET_FILE
-from schemas.index import INDEX_SCHEMAS, CommitRecord, FailureRecord
+from schemas.index import INDEX_SCHEMAS, CommitRecord, FailureRecord, StepSeconds, TaskTimings
 from schemas.shard import ShardAttributes
 from storage.location import RERUN_FIX, DamagedFile, Location, damaged, first_validation_error, is_temporary
 from storage.parquet import parquet_bytes
@@ -47,6 +47,8 @@ class ShardPayload:
     attributes: ShardAttributes
     arrays: dict[str, npt.NDArray[Any]]
     index_rows: dict[str, list[Any]]
+    timings: TaskTimings | None = None
+    """The task's per-step time so far; `write_task` adds its write and keeps it in the commit record."""
 
 
 def shard_path(task_id: str, attempt_id: str) -> str:
@@ -96,6 +98,7 @@ def write_task(location: Location, payload: ShardPayload, attempt_id: str) -> Co
         return existing
     shard = shard_path(task_id, attempt_id)
     fragment = fragment_path(task_id, attempt_id)
+    cpu, wall = time.process_time(), time.perf_counter()
     write_shard_group(location, shard, attributes, payload.arrays)
     location.write_atomic(fragment, _fragment_bytes(payload, shard, attempt_id))
     record = CommitRecord(
@@ -105,6 +108,7 @@ def write_task(location: Location, payload: ShardPayload, attempt_id: str) -> Co
         shard=shard,
         index_fragment=fragment,
         num_samples=attributes.num_samples,
+        timings=_with_write(payload.timings, time.process_time() - cpu, time.perf_counter() - wall),
     )
     if location.create_exclusive(commit_path(task_id), record.model_dump_json().encode()):
         location.remove(failure_path(task_id))
@@ -112,6 +116,16 @@ def write_task(location: Location, payload: ShardPayload, attempt_id: str) -> Co
     committed = read_commit(location, task_id)
     assert committed is not None
     return committed
+
+
+def _with_write(timings: TaskTimings | None, cpu: float, wall: float) -> TaskTimings | None:
+    """``timings`` with this write's seconds added to its ``write`` step and its total."""
+    if timings is None:
+        return None
+    before = timings.steps.get("write", StepSeconds(cpu=0.0, wall=0.0))
+    steps = {**timings.steps, "write": StepSeconds(cpu=before.cpu + cpu, wall=before.wall + wall)}
+    total = StepSeconds(cpu=timings.total.cpu + cpu, wall=timings.total.wall + wall)
+    return TaskTimings(steps=steps, total=total)
 
 
 def write_failure(location: Location, record: FailureRecord) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Annotated
 
@@ -16,8 +17,16 @@ import typer
 from datagen.cli.common import ConfigOption, error_console, progress_bar, say, user_errors
 from datagen.config_io import load_config
 from datagen.errors import InvalidArgument
+from schemas.planning import PLANNER_ENTRY_POINTS
 
 EXIT_SOME_FAILED = 1
+
+
+def _installed_plugins() -> str:
+    """The planner plugins installed now, for the help (`datagen.evaluate.planners.installed_plugins`, which
+    this module does not import: it would load the pipeline on every command)."""
+    names = sorted({plugin.name for plugin in entry_points(group=PLANNER_ENTRY_POINTS)})
+    return ", ".join(names) or "none"
 
 
 def evaluate(
@@ -29,7 +38,9 @@ def evaluate(
             "-p",
             help=(
                 "oracle, greedy, greedy:K, random, random:K, random:match=PLANNER (as many views as PLANNER, "
-                "run by run), all, osvp:CHECKPOINT or osvp+DECODING:CHECKPOINT; repeat for several."
+                "run by run), all, or NAME:ARG / NAME+DECODING:ARG of a planner plugin (entry point group "
+                f"{PLANNER_ENTRY_POINTS}, e.g. osvp:CHECKPOINT; installed: {_installed_plugins()}); "
+                "repeat for several."
             ),
         ),
     ],

@@ -18,6 +18,7 @@ from rich.text import Text
 
 from datagen.cli.common import console, error_console, say, user_errors
 from datagen.engine.driver import JobProgress, ProgressCallback
+from datagen.pipeline.step_timing import step_lines, totals_from_json
 from datagen.settings import RunSettings, default_home
 from jobs.ledger import DONE, RUNNING, Job
 from schemas.jobs import JobSpec
@@ -107,6 +108,9 @@ def _report(job: Job) -> None:
                 highlight=False,
                 soft_wrap=True,
             )
+        if "step_seconds" in summary:
+            for line in step_lines(totals_from_json(summary["step_seconds"])):
+                say(line)
         for line in [*summary.get("line_errors", []), *summary.get("failures", [])]:
             error_console.print(Text("error: ", style="red") + Text(str(line)), highlight=False, soft_wrap=True)
     console.print(Text("dataset: ") + Text(job.out, style="bold"), highlight=False, soft_wrap=True)

@@ -87,28 +87,22 @@ def poco_eval(
     from datagen.errors import ConfigError
     from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
     from datagen.pipeline.refine.base import Refiner
-    from datagen.pipeline.refine.carve import CarveRefiner
-    from datagen.pipeline.refine.poco.checkpoint import load_checkpoint
-    from datagen.pipeline.refine.poco.refiner import BUILTIN_WEIGHTS, PocoRefiner, weights_sha256
+    from datagen.pipeline.refine.factory import load_poco_refiner, make_refiner
     from datagen.training.poco_eval import evaluate_object, mean_metrics
 
     chosen_views = _parse_views(views)
     with user_errors():
         torch.set_num_threads(threads)
         resolved = load_config(config)
-        path = BUILTIN_WEIGHTS if weights == "builtin" else Path(weights)
+        cut = resolved.poco_threshold if threshold is None else threshold
+        scored = resolved.model_copy(update={"refiner": "poco", "poco_weights": weights, "poco_threshold": cut})
+        path = scored.poco_weights_path()
         if not path.is_file():
             raise ConfigError(f"{path}: weights file not found")
-        model = load_checkpoint(path, preset)
-        cut = resolved.poco_threshold if threshold is None else threshold
-        refiners: dict[str, Refiner] = {
-            "poco": PocoRefiner(resolved, model, weights_sha256(path), cut, resolved.finetune_steps),
-            "carve": CarveRefiner(resolved),
-        }
-        if poisson:
-            from datagen.pipeline.refine.poisson import PoissonRefiner
-
-            refiners["poisson"] = PoissonRefiner(resolved)
+        poco = load_poco_refiner(scored, "cpu", preset)
+        refiners: dict[str, Refiner] = {"poco": poco}
+        for name in ("carve", "poisson") if poisson else ("carve",):
+            refiners[name] = make_refiner(resolved.model_copy(update={"refiner": name}))
         listing = read_objects_file(objects)
         results = []
         for entry in listing.entries:
@@ -129,7 +123,7 @@ def poco_eval(
             "hidden",
             "band",
             "s/view",
-            title=f"single views: {model.preset.name}, threshold {cut:g}, {path.name}",
+            title=f"single views: {poco.model.preset.name}, threshold {cut:g}, {path.name}",
             caption="IoU: occupied class; mIoU: mean of both classes; hidden: recall of hidden P_gt keys; "
             "band: unknown band keys per view",
         )

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import typer
 from rich import box
 from rich.table import Table
@@ -20,6 +21,8 @@ from datagen.cli.common import UrlArgument, console, dataset_options, say, user_
 from datagen.errors import OutputError
 from datagen.inspection.listing import FAILED, SampleDetails, TaskRow, describe_sample, find_sample, list_tasks
 from datagen.inspection.stats import DatasetStats, dataset_stats
+from datagen.pipeline.step_timing import step_lines
+from storage.samples import mask_bits
 
 PngOption = Annotated[Path | None, typer.Option("--png", metavar="FILE", help="Also draw it to this PNG file.")]
 
@@ -54,11 +57,11 @@ def format_views(views: Sequence[int]) -> str:
 def view_strip(details: SampleDetails) -> str:
     """One character per view, in bit order: I input, L label, B both, a view of another minimum cover
     (version 2), . other."""
-    support = details.ambiguity.support if details.ambiguity else 0
+    support = mask_bits(details.ambiguity.support if details.ambiguity else 0, details.num_views).tolist()
     marks = []
     for view in range(details.num_views):
         chosen = (view in details.input_views, view in details.label_views)
-        other = "a" if support >> view & 1 else "."
+        other = "a" if support[view] else "."
         marks.append({(True, False): "I", (False, True): "L", (True, True): "B"}.get(chosen, other))
     return "".join(marks)
 
@@ -71,7 +74,7 @@ def ambiguity_rows(details: SampleDetails) -> list[tuple[str, str]]:
     count = f"{found.count}" if found.exact else f"at least {found.count}"
     marginals = found.marginals(details.num_views)
     shares = "  ".join(f"{v}:{marginals[v]:.2f}" for v in range(details.num_views) if marginals[v] > 0)
-    support_views = [v for v in range(details.num_views) if found.support >> v & 1]
+    support_views = np.flatnonzero(mask_bits(found.support, details.num_views)).tolist()
     listed = "" if found.exact else f" (marginals over the {len(found.covers)} listed)"
     return [
         ("minimum covers", f"{count}; the label is one of them"),
@@ -222,6 +225,8 @@ def print_stats(stats: DatasetStats) -> None:
     console.print(spread)
     say("proofs: " + (", ".join(f"{kind} {count}" for kind, count in stats.solver_proofs.items()) or "none"))
     print_ambiguity(stats)
+    for line in step_lines(stats.step_seconds):
+        say(line)
 
     if stats.failed:
         failed = _table("task", "object", "message", title="failed tasks")
@@ -256,7 +261,8 @@ def stats(
     png: PngOption = None,
 ) -> None:
     """Samples per object and rotation, cases and label sizes per case size, empty labels, points and
-    solver time percentiles, failed tasks; --json for machines, --png for the histograms."""
+    solver time percentiles, time per task step, failed tasks; --json for machines, --png for the
+    histograms."""
     from storage import open_dataset
 
     with user_errors(url):

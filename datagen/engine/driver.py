@@ -42,16 +42,18 @@ import numpy as np
 
 from datagen.engine.worker import TaskOutcome, execute_task
 from datagen.errors import ConfigError, DatagenError
+from datagen.pipeline.step_timing import step_totals
 from datagen.pipeline.viewspace import build_view_space
 from jobs.ledger import CANCELLED, DONE, FAILED, FINAL_STATES, PENDING, RUNNING, Holders, Job, Ledger
 from schemas.config import GenerationConfig
 from schemas.dataset import DATASET_FILE, DatasetInfo
-from schemas.index import FailureRecord
+from schemas.index import failure_record
 from schemas.jobs import JobSpec, TaskSpec
 from schemas.version import SCHEMA_VERSION
 from storage import (
     Location,
     check_store,
+    committed_tasks,
     finalise,
     init_dataset,
     open_location,
@@ -190,16 +192,7 @@ def run_job(
         info = init_dataset(location, info)  # an existing dataset keeps its own layout version
         for number, line_error in enumerate(spec.line_errors):
             origin, _, message = line_error.partition(": ")
-            write_failure(
-                location,
-                FailureRecord(
-                    schema_version=SCHEMA_VERSION,
-                    task_id=f"line-{number:04d}",
-                    object_name="",
-                    origin=origin,
-                    message=message,
-                ),
-            )
+            write_failure(location, failure_record(f"line-{number:04d}", message, origin=origin))
     ensure_ray(address, num_cpus)
     if refiner_gpus > 0 and not ray.cluster_resources().get("GPU", 0):
         raise ConfigError(
@@ -300,8 +293,10 @@ def _count(ledger: Ledger, job_id: str, state: JobProgress) -> None:
 def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> dict[str, Any]:
     """Finalise the index and clean up leftovers; the job's summary, counted from the dataset."""
     with _store_errors(location.url):
-        index = finalise(location)
-    summary: dict[str, Any] = {}
+        commits = committed_tasks(location)
+        index = finalise(location, commits)
+    job_tasks = {task.task_id for task in spec.tasks}
+    summary: dict[str, Any] = {"step_seconds": step_totals(r for r in commits if r.task_id in job_tasks).to_json()}
     try:
         swept = sweep_leftovers(location, [task.task_id for task in spec.tasks])
     except Exception as error:  # a failed clean-up must not fail a finished job
@@ -415,15 +410,7 @@ def _worker_failure(exc: BaseException, job_id: str) -> str:
 
 def _write_failure(location: Location, task: TaskSpec, message: str, state: JobProgress) -> None:
     try:
-        write_failure(
-            location,
-            FailureRecord(
-                schema_version=SCHEMA_VERSION,
-                task_id=task.task_id,
-                object_name=task.object.name,
-                origin=task.object.origin,
-                message=message,
-            ),
-        )
+        failure = failure_record(task.task_id, message, object_name=task.object.name, origin=task.object.origin)
+        write_failure(location, failure)
     except Exception as error:  # the store that failed the task may refuse this too; the ledger has it
         state.messages.append(f"{task.task_id}: failure record not written ({type(error).__name__}: {error})")

@@ -1,4 +1,4 @@
-"""Relabel a dataset for another alpha or label tie-break from its stored sets (PIPELINE.md section 8).
+"""Relabel a dataset for another alpha or label tie-break from its stored sets (docs/pipeline.md section 8).
 
 A shard keeps each view's P_i, so P_full, the coverage and every label of its stored cases can be
 computed again without imaging or refining anything: the samples' points and observed sets are

@@ -10,6 +10,7 @@ task fails.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import sys
 import time
@@ -23,11 +24,12 @@ from datagen.engine.shard_payload import task_payload
 from datagen.errors import ConfigError, DatagenError
 from datagen.pipeline.objects.prepare import PreparedObject, prepare_object
 from datagen.pipeline.refine import make_refiner
+from datagen.pipeline.step_timing import StepClock
 from datagen.pipeline.task import run_task
 from datagen.pipeline.thread_limits import fixed_torch_threads, single_threaded_blas
 from datagen.pipeline.viewspace import ViewSpace, build_view_space
 from schemas.config import GenerationConfig
-from schemas.index import FailureRecord
+from schemas.index import failure_record
 from schemas.jobs import ObjectRef, TaskSpec
 from schemas.version import SCHEMA_VERSION
 from storage import is_s3, is_transient, open_location, read_commit, write_failure, write_task
@@ -72,6 +74,7 @@ def execute_task(
     the dataset's layout, which its shards keep (a resumed version-1 dataset stays version 1).
     """
     started = time.perf_counter()
+    clock = StepClock()
     frozen = config.model_dump_json()
     generation = _config(frozen)
     location = open_location(out, storage_options)
@@ -89,21 +92,16 @@ def execute_task(
             )
         refiner = make_refiner(generation, device)  # first: it may import torch, which the bound below fixes
         with single_threaded_blas(), fixed_torch_threads():
-            prepared = _prepared(spec.object.model_dump_json(), frozen)
-            result = run_task(prepared, spec.rotation, generation, _view_space(frozen), refiner)
+            with clock.step("prepare"):  # ~0 when this worker prepared the object for another rotation
+                prepared = _prepared(spec.object.model_dump_json(), frozen)
+            result = run_task(prepared, spec.rotation, generation, _view_space(frozen), refiner, clock=clock)
     except DatagenError as exc:
-        write_failure(
-            location,
-            FailureRecord(
-                schema_version=SCHEMA_VERSION,
-                task_id=spec.task_id,
-                object_name=spec.object.name,
-                origin=spec.object.origin,
-                message=str(exc),
-            ),
-        )
+        failure = failure_record(spec.task_id, str(exc), object_name=spec.object.name, origin=spec.object.origin)
+        write_failure(location, failure)
         return TaskOutcome(spec.task_id, False, 0, execution, message=str(exc), seconds=time.perf_counter() - started)
-    payload = task_payload(result, generation, schema_version)
+    with clock.step("write"):  # the writer adds its own part: the shard and the index fragment
+        payload = task_payload(result, generation, schema_version)
+    payload = dataclasses.replace(payload, timings=clock.timings())
 
     def write() -> Any:  # a new execution id per try: a failed try's partial files are orphans
         return write_task(location, payload, f"{attempt_id}-{uuid.uuid4().hex[:8]}")

@@ -6,7 +6,7 @@ order. Each move costs the local path around the obstacle sphere. Budgets cut th
 ``views`` views in all (the initial one included) and at most ``metres`` of movement (a move that would
 exceed it is not made).
 
-Figures (reference/authors-pipeline.md section 8): coverage = distinct observed keys / keys visible from
+Figures (docs/authors-code.md section 8): coverage = distinct observed keys / keys visible from
 all candidate views (the authors' reference count); ``coverage_gt`` = the same over every key of P_gt;
 required views counts the initial view; coverage per view and per metre are the paper's efficiency
 columns (percent per view, percent per metre). A planner with a matched random in the run

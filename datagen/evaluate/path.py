@@ -1,6 +1,6 @@
 """Movement cost of a one-shot view set: local paths around the object and the shortest open tour.
 
-The authors (reference/authors-pipeline.md sections 8.2 and 8.3) charge the camera for moving between two
+The authors (docs/authors-code.md sections 8.2 and 8.3) charge the camera for moving between two
 views along a "local path" that skirts an obstacle sphere around the object, and visit a one-shot set in the
 order of the shortest open path (Held-Karp) from the initial view. We reproduce both with two deliberate
 differences, each documented where it applies:

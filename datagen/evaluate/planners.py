@@ -2,8 +2,8 @@
 
 A planner answers a `Situation` with a `Plan`: either a one-shot set (visited along the shortest open
 path) or an ordered sequence (an iterative chooser that already decided the order). Trained networks
-plug in as a `ViewScorer` (refined cloud + view state in, one probability per view out) wrapped by
-`ScoredPlanner`, which keeps the views above 0.5 as the paper does, or lets a `DecodingScorer` turn the
+plug in as a `ViewScorer` (`schemas.planning`: refined cloud + view state in, one probability per view
+out) wrapped by `ScoredPlanner`, which keeps the views above 0.5 as the paper does, or lets a `DecodingScorer` turn the
 probabilities into views its own way (a named decoding). Baselines:
 
 - ``oracle``: the generator's exact label for this very case, what a perfect network trained on the
@@ -15,32 +15,55 @@ probabilities into views its own way (a named decoding). Baselines:
   situation, so a trained planner is judged against chance at equal views (`match_planners`);
 - ``all``: every candidate view.
 
-``osvp:FILE`` loads a checkpoint of the `osvp` training package through its ``osvp.planning`` module
-(``load_scorer(path) -> ViewScorer``), imported only when asked for; ``osvp+DECODE:FILE`` plans with the
-scorer's decoding DECODE instead of its default.
+Any other ``NAME:ARG`` is a planner plugin: the `schemas.planning.ScorerFactory` an installed distribution
+registers as entry point NAME in the group ``datagen.planners`` (`PLANNER_ENTRY_POINTS`), imported only
+when asked for and called with ARG once per process (`plugin_scorer`); ``NAME+DECODE:ARG`` plans with the
+scorer's decoding DECODE instead of its default. The `osvp` training package is one such plugin:
+``osvp:FILE`` loads an `osvp train` checkpoint.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from pathlib import Path
-from typing import Protocol, runtime_checkable
+from importlib.metadata import EntryPoint, entry_points
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from datagen.errors import PlannerError
+from datagen.errors import DatagenError, PlannerError
 from datagen.evaluate.situation import Situation
 from datagen.pipeline.setcover import mask_to_views
+from schemas.planning import PLANNER_ENTRY_POINTS, DecodingScorer, ScorerFactory, ViewScorer
 
 CHOICE_THRESHOLD = 0.5
 """A view is chosen when its probability exceeds this (the paper's rule)."""
 
-PLANNER_HELP = (
-    "oracle, greedy, greedy:K, random, random:K, random:match=PLANNER, all, osvp:CHECKPOINT or osvp+DECODING:CHECKPOINT"
-)
+BUILTIN_PLANNERS = ("oracle", "greedy", "random", "all")
+"""Names a plugin cannot take: ``NAME:ARG`` with one of these is never looked up among the entry points."""
+BUILTIN_HELP = "oracle, greedy, greedy:K, random, random:K, random:match=PLANNER, all"
+
+
+def installed_plugins() -> dict[str, EntryPoint]:
+    """The planner plugins of this environment by NAME: entry points of group `PLANNER_ENTRY_POINTS`
+    (the first one of a name; one named like a built-in planner is never used)."""
+    found: dict[str, EntryPoint] = {}
+    for plugin in entry_points(group=PLANNER_ENTRY_POINTS):
+        if plugin.name not in BUILTIN_PLANNERS:
+            found.setdefault(plugin.name, plugin)
+    return found
+
+
+def planner_help(plugins: Sequence[str] | None = None) -> str:
+    """The planners one can name: the built-ins, then ``NAME:ARG`` of each installed plugin."""
+    names = sorted(installed_plugins() if plugins is None else plugins)
+    listed = ", ".join(f"{name}:ARG" for name in names) if names else f"none installed in {PLANNER_ENTRY_POINTS!r}"
+    return f"{BUILTIN_HELP}, or a plugin's NAME:ARG or NAME+DECODING:ARG ({listed})"
+
+
+PLANNER_HELP = planner_help()
+"""`planner_help` of the plugins installed when this module was imported."""
 MATCH_PREFIX = "match="
 """``random:match=SPEC``: the argument that names the planner whose view count a random planner takes."""
 
@@ -61,35 +84,6 @@ class Planner(Protocol):
     """Whether the planner reads the refined input or the generator's label (the scene must be refined)."""
 
     def plan(self, situation: Situation) -> Plan: ...
-
-
-class ViewScorer(Protocol):
-    """A trained network: one probability per candidate view for a cloud and a view state.
-
-    A scorer with ``source = "observed"`` gets what the input views saw (the paper's "Ours-Sparse");
-    any other gets the refined cloud P(O_S), a shard's ``points``.
-    """
-
-    def view_probabilities(
-        self, points: npt.NDArray[np.float32], view_state: npt.NDArray[np.float32]
-    ) -> npt.NDArray[np.float64]: ...
-
-
-@runtime_checkable
-class DecodingScorer(ViewScorer, Protocol):
-    """A scorer that decides itself which views its probabilities stand for (``osvp+DECODE:FILE``).
-
-    ``decoding`` is None for the scorer's default, else the text after ``osvp+``; an unknown one raises
-    ``ValueError``. A scorer may also list the names it accepts as ``decodings`` (a tuple of str), so a
-    bad name stops before any imaging; a parametrised decoding (``threshold=0.3``) is checked by the
-    part before ``=``.
-    """
-
-    def select_views(
-        self, probabilities: npt.NDArray[np.float64], view_state: npt.NDArray[np.float32], decoding: str | None
-    ) -> npt.NDArray[np.bool_]:
-        """One bool per view, True = take it (the views already taken are dropped afterwards)."""
-        ...
 
 
 class OraclePlanner:
@@ -252,20 +246,59 @@ def _check_decoding(name: str, scorer: ViewScorer, decoding: str | None) -> None
         raise PlannerError(f"planner {name!r}: unknown decoding {decoding!r}; choose {', '.join(accepted)}")
 
 
-def load_osvp_scorer(path: Path) -> ViewScorer:
-    """The `osvp` package's scorer for a checkpoint; imported here only, so datagen runs without it."""
-    if not path.is_file():
-        raise PlannerError(f"{path}: checkpoint not found; give the path of a file written by `osvp train`")
+_SCORERS: dict[tuple[EntryPoint, str], ViewScorer] = {}
+"""The scorers built in this process, by plugin and argument (`plugin_scorer`)."""
+
+
+def plugin_scorer(name: str, argument: str, spec: str) -> ViewScorer:
+    """The scorer planner plugin NAME builds for ARGUMENT (``spec`` names the planner in errors).
+
+    Built once per process and plugin and argument, however many objects and situations ask (a
+    checkpoint is read once, not once per object): a file changed under the same path in the same
+    process is not read again. Every failure is one `PlannerError` line: no such plugin (naming the
+    installed ones), a plugin that cannot be imported (naming its distribution), an argument its factory
+    refuses (its `DatagenError` goes through as it is), or a factory that returns no `ViewScorer`.
+    """
+    plugins = installed_plugins()
+    plugin = plugins.get(name)
+    if plugin is None:
+        if name == "osvp":
+            raise PlannerError(f"planner {spec!r} needs the osvp package; install it with `pip install ./osvp`")
+        raise PlannerError(f"unknown planner {spec!r}; choose {planner_help(list(plugins))}")
+    key = (plugin, argument)
+    if key not in _SCORERS:
+        _SCORERS[key] = _build_scorer(plugin, argument, spec)
+    return _SCORERS[key]
+
+
+def _build_scorer(plugin: EntryPoint, argument: str, spec: str) -> ViewScorer:
+    dist = plugin.dist
+    source = f"distribution {dist.name} {dist.version}" if dist is not None else "its distribution"
     try:
-        module = importlib.import_module("osvp.planning")
-    except ModuleNotFoundError as exc:
-        if exc.name not in ("osvp", "osvp.planning"):
-            raise  # osvp is there but one of its own dependencies is not: not this message
+        factory: ScorerFactory = plugin.load()
+    except Exception as exc:  # any import-time failure of third-party code: one line, not a traceback
         raise PlannerError(
-            f"planner osvp:{path} needs the osvp package; install it with `pip install ./osvp`"
+            f"planner plugin {plugin.name!r} ({plugin.value}, {source}) cannot be imported: {_one_line(exc)}"
         ) from None
-    scorer: ViewScorer = module.load_scorer(path)
+    try:
+        scorer = factory(argument)
+    except DatagenError:
+        raise
+    except (ValueError, OSError) as exc:
+        raise PlannerError(f"planner {spec!r}: {_one_line(exc, named=False)}") from None
+    if not isinstance(scorer, ViewScorer):
+        raise PlannerError(
+            f"planner {spec!r}: plugin {plugin.name!r} ({plugin.value}, {source}) returned a "
+            f"{type(scorer).__name__}, not a scorer with view_probabilities(points, view_state)"
+        )
     return scorer
+
+
+def _one_line(exc: BaseException, named: bool = True) -> str:
+    """The first line of an exception's message, after its type's name unless ``named`` is False."""
+    text = str(exc).strip()
+    line = text.splitlines()[0] if text else ""
+    return f"{type(exc).__name__}: {line}" if named or not line else line
 
 
 def make_planner(spec: str) -> Planner:
@@ -275,12 +308,8 @@ def make_planner(spec: str) -> Planner:
     """
     name, colon, argument = spec.partition(":")
     if colon and not argument:
-        raise PlannerError(f"planner {spec!r} names nothing after ':'; choose {PLANNER_HELP}")
+        raise PlannerError(f"planner {spec!r} names nothing after ':'; choose {planner_help()}")
     base, plus, decoding = name.partition("+")
-    if base == "osvp" and argument:
-        if plus and not decoding:
-            raise PlannerError(f"planner {spec!r} names no decoding after '+'; give osvp+DECODING:CHECKPOINT")
-        return ScoredPlanner(spec, load_osvp_scorer(Path(argument)), decoding=decoding or None)
     if name == "oracle" and not argument:
         return OraclePlanner()
     if name == "all" and not argument:
@@ -292,7 +321,11 @@ def make_planner(spec: str) -> Planner:
     if name in ("greedy", "random"):
         total = _view_count(spec, argument) if argument else None
         return GreedyPlanner(total) if name == "greedy" else RandomPlanner(total)
-    raise PlannerError(f"unknown planner {spec!r}; choose {PLANNER_HELP}")
+    if argument and base not in BUILTIN_PLANNERS:
+        if plus and not decoding:
+            raise PlannerError(f"planner {spec!r} names no decoding after '+'; give {base}+DECODING:{argument}")
+        return ScoredPlanner(spec, plugin_scorer(base, argument, spec), decoding=decoding or None)
+    raise PlannerError(f"unknown planner {spec!r}; choose {planner_help()}")
 
 
 def match_planners(planners: Sequence[Planner]) -> list[Planner]:

@@ -155,7 +155,7 @@ def _evaluate_object(index: int, obj: ObjectSpec, config: GenerationConfig, spec
 def _evaluate_scenes(
     index: int, obj: ObjectSpec, config: GenerationConfig, spec: EvaluationSpec, outcome: ObjectOutcome
 ) -> None:
-    planners = check_planners(spec.planners)
+    planners = check_planners(spec.planners)  # a plugin's scorer is built once per process (`plugin_scorer`)
     prepared = prepare_object(obj, config)
     view_space = build_view_space(config.view_space)
     if max(spec.rotations) >= config.rotations:

@@ -2,7 +2,7 @@
 
 A view's observation is computed once, by the generator's own imaging (`scan_task`), so "visiting" a
 view in the simulated online run returns exactly the keys V_i the generator labelled with. The
-reference count is the authors' (reference/authors-pipeline.md section 8.1): the distinct keys visible
+reference count is the authors' (docs/authors-code.md section 8.1): the distinct keys visible
 from all candidate views together; coverage against every key of P_gt is reported beside it.
 """
 
@@ -23,7 +23,7 @@ from schemas.config import GenerationConfig
 
 OBSTACLE_SCALE = math.sqrt(2.0) * 17.0 / 16.0
 """Obstacle radius / bounding radius. The authors take r = ps·sqrt(2) with ps = 17/16 of the object's
-largest distance from its centre (reference/authors-pipeline.md sections 2.10 and 8.2)."""
+largest distance from its centre (docs/authors-code.md sections 2.10 and 8.2)."""
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Check stored labels against a solve of our own (PIPELINE.md sections 5 and 7).
+"""Check stored labels against a solve of our own (docs/pipeline.md sections 5 and 7).
 
 `storage.validate` only asks whether a label covers its U. Here every checked label must also be a
 minimum cover and, among the minimum covers, the lexicographically smallest tuple of views in the

@@ -10,10 +10,12 @@ import re
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import pyarrow.compute as pc
 
 from datagen.errors import InvalidArgument
 from storage import Dataset, LabelAmbiguity, committed_tasks, stored_bytes
+from storage.samples import mask_bits
 
 COMMITTED = "committed"
 FAILED = "failed"
@@ -164,8 +166,8 @@ def describe_sample(dataset: Dataset, row: int) -> SampleDetails:
     return SampleDetails(
         row=row,
         metadata=dataset.index.slice(row, 1).to_pylist()[0],
-        input_views=tuple(v for v in range(width) if view_state >> v & 1),
-        label_views=tuple(v for v in range(width) if label >> v & 1),
+        input_views=tuple(np.flatnonzero(mask_bits(view_state, width)).tolist()),
+        label_views=tuple(np.flatnonzero(mask_bits(label, width)).tolist()),
         num_views=width,
         points=len(dataset.keys(row, "points")),
         observed=len(dataset.keys(row, "observed")),

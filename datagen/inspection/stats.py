@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from datagen.inspection.listing import failed_tasks
+from datagen.pipeline.step_timing import StepTotals, step_totals
 from storage import Dataset, committed_tasks
 
 PERCENTILES = (0, 5, 50, 95, 100)
@@ -62,6 +63,8 @@ class DatasetStats:
     points_per_sample: npt.NDArray[np.int64] = field(repr=False, compare=False)
     """The raw values behind the percentiles, for the histograms (not in `to_json`)."""
     solver_seconds: npt.NDArray[np.float64] = field(repr=False, compare=False)
+    step_seconds: StepTotals = field(default_factory=lambda: StepTotals(tasks=0, untimed=0))
+    """CPU and wall seconds per task step summed over the commit records that carry them."""
 
     def to_json(self) -> dict[str, Any]:
         """Plain dicts, lists and numbers (integer keys written as strings, as JSON requires)."""
@@ -87,6 +90,7 @@ class DatasetStats:
                 {"task_id": f.task_id, "object": f.object_name, "origin": f.origin, "message": f.message}
                 for f in self.failed
             ],
+            "step_seconds": self.step_seconds.to_json() if self.step_seconds.tasks else None,
         }
 
 
@@ -158,7 +162,8 @@ def dataset_stats(dataset: Dataset) -> DatasetStats:
         histogram.setdefault(int(case_size), {})[int(label_size)] = count
     points = index.column("num_points").to_numpy().astype(np.int64)
     seconds = index.column("solver_seconds").to_numpy().astype(np.float64)
-    committed = {record.task_id for record in committed_tasks(dataset.location)}
+    records = committed_tasks(dataset.location)
+    committed = {record.task_id for record in records}
     return DatasetStats(
         url=dataset.url,
         samples=len(dataset),
@@ -178,4 +183,5 @@ def dataset_stats(dataset: Dataset) -> DatasetStats:
         failed=[FailedTask(t.task_id, t.object_name, t.origin, t.message) for t in failed_tasks(dataset, committed)],
         points_per_sample=points,
         solver_seconds=seconds,
+        step_seconds=step_totals(records),
     )

@@ -1,4 +1,4 @@
-"""Pinhole camera and look-at poses (PIPELINE.md section 2).
+"""Pinhole camera and look-at poses (docs/pipeline.md section 2).
 
 Camera frame follows OpenCV: x right, y down, z forward (the optical axis, through the origin). The
 roll keeps world +z up in the image; within 1 degree of the zenith, where that is undefined, world +y

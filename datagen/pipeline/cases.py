@@ -1,4 +1,4 @@
-"""Input cases: MA-SCVP's long-tail sampling (PIPELINE.md section 6), in exact integer arithmetic.
+"""Input cases: MA-SCVP's long-tail sampling (docs/pipeline.md section 6), in exact integer arithmetic.
 
 From the visibility sets V_i: a greedy trajectory from every start view (the view with the most
 new keys next, ties to the lowest index) until the union of all V_i is covered; every prefix before

@@ -1,4 +1,4 @@
-"""Filter and coverage (PIPELINE.md section 5): P_i, count, P_full and the coverage sets C_i.
+"""Filter and coverage (docs/pipeline.md section 5): P_i, count, P_full and the coverage sets C_i.
 
 Every key of the union of the P_i gets the bit mask of the views whose P_i contain it; count is its
 popcount. P_full keeps the keys with count >= alpha, and C_i is then "bit i of the mask" on P_full:

@@ -1,4 +1,4 @@
-"""Ground truth P_gt (PIPELINE.md section 1.7): keys of a dense, seeded surface sampling.
+"""Ground truth P_gt (docs/pipeline.md section 1.7): keys of a dense, seeded surface sampling.
 
 Each key keeps one representative surface point, the sample with the lowest index, so the choice
 never depends on sort stability or thread count. Imaging may add keys it hits that the sampling

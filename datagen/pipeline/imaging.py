@@ -1,4 +1,4 @@
-"""Virtual imaging of one task from every candidate view (PIPELINE.md section 3).
+"""Virtual imaging of one task from every candidate view (docs/pipeline.md section 3).
 
 Two modes share one ray caster:
 

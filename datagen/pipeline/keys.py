@@ -1,4 +1,4 @@
-"""Voxel keys: the integer identity of every point in the pipeline (PIPELINE.md section 0).
+"""Voxel keys: the integer identity of every point in the pipeline (docs/pipeline.md section 0).
 
 A key is ``floor(p / voxel_size + grid_offset)`` per axis, computed in float64. The offset moves the
 grid off the flat faces that centring and round sizes put exactly on voxel boundaries. Sets of keys

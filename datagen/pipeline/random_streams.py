@@ -1,4 +1,4 @@
-"""Random streams (PIPELINE.md section 9): one root seed, one independent stream per use.
+"""Random streams (docs/pipeline.md section 9): one root seed, one independent stream per use.
 
 ``SeedSequence([seed, object_id_prefix, rotation, PURPOSE(, mask)])``: the draws of one use never
 depend on how many other uses ran before it, on which worker, or in which order.

@@ -1,4 +1,4 @@
-"""Labels: minimum set covers solved exactly with HiGHS, lexicographic tie-break (PIPELINE.md 7).
+"""Labels: minimum set covers solved exactly with HiGHS, lexicographic tie-break (docs/pipeline.md section 7).
 
 A universe element (a key of U) is represented by the bit mask of the views that cover it. Two
 facts make labels cheap:
@@ -577,6 +577,54 @@ def highs_solver(threads: int, time_limit: float) -> highspy.Highs:
     return solver
 
 
+def cover_model(
+    rows: MaskArray,
+    candidates: list[int],
+    costs: list[float],
+    *,
+    maximise: bool = False,
+    cardinality: int | None = None,
+    lower: list[float] | None = None,
+    upper: list[float] | None = None,
+    relax: bool = False,
+) -> highspy.HighsLp:
+    """The set-cover model over ``candidates``: one column per view (bounds ``lower``..``upper``,
+    default 0..1, integer unless ``relax``), one row per mask (the sum of the candidates covering it
+    >= 1) and, with ``cardinality``, a row sum(x) == cardinality; the one way to build one
+    (``benchmarks/labels.py`` solves it on unreduced rows as its naive baseline)."""
+    m = len(candidates)
+    starts, columns = _incidence(rows, candidates)
+    num_rows = len(rows)
+    lp = highspy.HighsLp()
+    lp.num_col_ = m
+    lp.col_cost_ = costs
+    lp.col_lower_ = [0.0] * m if lower is None else lower
+    lp.col_upper_ = [1.0] * m if upper is None else upper
+    values = [1.0] * len(columns)
+    row_lower = [1.0] * num_rows
+    row_upper = [highspy.kHighsInf] * num_rows
+    if cardinality is not None:
+        starts = [*starts, starts[-1] + m]
+        columns = columns + list(range(m))
+        values = values + [1.0] * m
+        row_lower.append(float(cardinality))
+        row_upper.append(float(cardinality))
+        num_rows += 1
+    lp.num_row_ = num_rows
+    lp.row_lower_ = row_lower
+    lp.row_upper_ = row_upper
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.start_ = starts
+    lp.a_matrix_.index_ = columns
+    lp.a_matrix_.value_ = values
+    lp.a_matrix_.num_col_ = m
+    lp.a_matrix_.num_row_ = num_rows
+    if not relax:
+        lp.integrality_ = [highspy.HighsVarType.kInteger] * m
+    lp.sense_ = highspy.ObjSense.kMaximize if maximise else highspy.ObjSense.kMinimize
+    return lp
+
+
 def _run_model(
     rows: MaskArray,
     candidates: list[int],
@@ -590,35 +638,9 @@ def _run_model(
     relax: bool = False,
 ) -> list[float] | None:
     """Solve one binary model; None when proven infeasible, `LabelError` when not solved."""
-    starts, columns = _incidence(rows, candidates)
-    num_rows = len(rows)
-    lp = highspy.HighsLp()
-    lp.num_col_ = len(candidates)
-    lp.col_cost_ = costs
-    lp.col_lower_ = lower
-    lp.col_upper_ = upper
-    values = [1.0] * len(columns)
-    row_lower = [1.0] * num_rows
-    row_upper = [highspy.kHighsInf] * num_rows
-    if cardinality is not None:
-        starts = [*starts, starts[-1] + len(candidates)]
-        columns = columns + list(range(len(candidates)))
-        values = values + [1.0] * len(candidates)
-        row_lower.append(float(cardinality))
-        row_upper.append(float(cardinality))
-        num_rows += 1
-    lp.num_row_ = num_rows
-    lp.row_lower_ = row_lower
-    lp.row_upper_ = row_upper
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
-    lp.a_matrix_.start_ = starts
-    lp.a_matrix_.index_ = columns
-    lp.a_matrix_.value_ = values
-    lp.a_matrix_.num_col_ = len(candidates)
-    lp.a_matrix_.num_row_ = num_rows
-    if not relax:
-        lp.integrality_ = [highspy.HighsVarType.kInteger] * len(candidates)
-    lp.sense_ = highspy.ObjSense.kMaximize if sense_maximise else highspy.ObjSense.kMinimize
+    lp = cover_model(
+        rows, candidates, costs, maximise=sense_maximise, cardinality=cardinality, lower=lower, upper=upper, relax=relax
+    )
     solver = highs_solver(threads, time_limit)
     solver.passModel(lp)
     solver.run()

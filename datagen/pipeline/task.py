@@ -1,4 +1,4 @@
-"""One task in memory: (object, rotation) -> its labelled samples (PIPELINE.md sections 1-8).
+"""One task in memory: (object, rotation) -> its labelled samples (docs/pipeline.md sections 1-8).
 
 `run_task` composes the pure steps: scan (P_gt and the n observations), refine every single view,
 filter to P_full and coverage masks, draw the long-tail cases from the visibility sets, refine
@@ -9,7 +9,6 @@ without re-imaging or re-refining.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -25,6 +24,7 @@ from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import Refiner, RefineRequest, refined_keys
 from datagen.pipeline.scanning import scan_task
 from datagen.pipeline.setcover import CoverResult, LabelError, TaskCover
+from datagen.pipeline.step_timing import StepClock, timed
 from datagen.pipeline.viewspace import ViewSpace
 from schemas.config import GenerationConfig
 from schemas.version import SCHEMA_VERSION
@@ -85,10 +85,11 @@ class TaskResult:
     failures: tuple[CaseFailure, ...]
     dropped_empty: int
     metadata: dict[str, object]
-    """Per-sample metadata shared by every sample of the task (PIPELINE.md section 8)."""
+    """Per-sample metadata shared by every sample of the task (docs/pipeline.md section 8)."""
     cover_rows: npt.NDArray[np.uint64] = field(default_factory=lambda: np.empty(0, dtype=np.uint64))
     """The undominated masks of P_full: every case's set-cover rows are those its views miss."""
     seconds: dict[str, float] = field(default_factory=dict)
+    """Coarse wall seconds (scan, refine, label); `run_task`'s clock has them per step."""
 
 
 def sample_id(task_id: str, case: int) -> str:
@@ -155,26 +156,31 @@ def run_task(
     view_space: ViewSpace,
     refiner: Refiner,
     threads: int = 1,
+    clock: StepClock | None = None,
 ) -> TaskResult:
-    """Every sample of task (object, rotation), in memory."""
-    timings: dict[str, float] = {}
-    clock = time.perf_counter()
+    """Every sample of task (object, rotation), in memory; ``clock`` (a new one by default) gets
+    each step's time (`schemas.index.TASK_STEPS` from ground_truth to labels)."""
+    clock = StepClock() if clock is None else clock
     spec = prepared.spec
     task_id = spec.task_id(rotation)
-    scan = scan_task(prepared, rotation, config, view_space)
-    timings["scan"] = time.perf_counter() - clock
+    scan = scan_task(prepared, rotation, config, view_space, clock)
 
-    clock = time.perf_counter()
-    views = refine_views(scan, refiner, config, spec.object_id, rotation)
+    with clock.step("refine_views"):
+        views = refine_views(scan, refiner, config, spec.object_id, rotation)
     sets = views.sets
-    cases = long_tail_cases(sets.visible, stream(config.seed, spec.object_id, rotation, Purpose.CASES))
-    inputs = case_inputs(views, cases, refiner, config, spec.object_id, rotation)
-    timings["refine"] = time.perf_counter() - clock
+    with clock.step("cases"):
+        cases = long_tail_cases(sets.visible, stream(config.seed, spec.object_id, rotation, Purpose.CASES))
+    with clock.step("refine_cases"):
+        inputs = case_inputs(views, cases, refiner, config, spec.object_id, rotation)
 
-    clock = time.perf_counter()
-    labelled = label_task(sets, cases, config, threads)
-    samples, dropped = labelled_samples(task_id, cases, labelled, inputs, config)
-    timings["label"] = time.perf_counter() - clock
+    labelled = label_task(sets, cases, config, threads, clock)
+    with clock.step("labels"):
+        samples, dropped = labelled_samples(task_id, cases, labelled, inputs, config)
+    timings = {
+        "scan": clock.wall_of("ground_truth", "imaging"),
+        "refine": clock.wall_of("refine_views", "cases", "refine_cases"),
+        "label": clock.wall_of("coverage", "labels"),
+    }
     return TaskResult(
         task_id=task_id,
         object_id=spec.object_id,
@@ -201,12 +207,16 @@ class TaskLabels:
     failures: list[CaseFailure]
 
 
-def label_task(sets: TaskSets, cases: Sequence[int], config: GenerationConfig, threads: int = 1) -> TaskLabels:
+def label_task(
+    sets: TaskSets, cases: Sequence[int], config: GenerationConfig, threads: int = 1, clock: StepClock | None = None
+) -> TaskLabels:
     """P_full, coverage and each case's exact label (with its minimum covers) for ``config.alpha``,
-    from the P_i alone: what generation and `relabel` share."""
-    coverage = coverage_table(sets.refined, config.alpha)
-    cover = task_cover(coverage.masks, config)
-    labels, failures = label_cases(cover, cases, threads)
+    from the P_i alone: what generation and `relabel` share; ``clock`` times coverage and labels."""
+    with timed(clock, "coverage"):
+        coverage = coverage_table(sets.refined, config.alpha)
+    with timed(clock, "labels"):
+        cover = task_cover(coverage.masks, config)
+        labels, failures = label_cases(cover, cases, threads)
     return TaskLabels(coverage, cover, labels, failures)
 
 

@@ -1,12 +1,12 @@
 """Thread bounds for per-view math.
 
 A tall-skinny matmul such as (100k x 3) @ (3 x 3) runs up to 100x slower with two OpenBLAS
-threads than with one on a 2-core machine (limits.md, pitfall 1). Pipeline entry points wrap
+threads than with one on a 2-core machine (measured when the pipeline was built). Pipeline entry points wrap
 their work in `single_threaded_blas`; parallelism comes from running tasks side by side.
 
 Workers also hold torch (the ``poco`` refiner) to a fixed count with `fixed_torch_threads`: its
 reductions split work by thread, so a fixed count per worker is what keeps refinements
-bit-identical whatever the number of workers (PIPELINE.md section 9).
+bit-identical whatever the number of workers (docs/pipeline.md section 9).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Candidate view positions on the upper hemisphere (PIPELINE.md section 2).
+"""Candidate view positions on the upper hemisphere (docs/pipeline.md section 2).
 
 Three sources: the authors' 32 Tammes-problem positions (embedded), a view-space file, or a seeded
 spread for any n that maximises the minimum angular separation. Positions are always rescaled to the

@@ -3,6 +3,8 @@
 Run as a script by conftest.py in a subprocess, so that the osvp test process itself never imports
 datagen: capsule, cone and torus at 2 rotations, refiner none (seconds, no Ray). With V1_OUT, the
 same tasks are also written in schema version 1 (no minimum covers), as an older datagen wrote them.
+`main` also takes another refiner, objects and rotation count (the light-install test makes a POCO
+dataset with it).
 
     python make_dataset.py OUT [V1_OUT]
 """
@@ -27,8 +29,10 @@ from storage import finalise, init_dataset, open_location, write_task
 OBJECTS = ("builtin:capsule", "builtin:cone", "builtin:torus")
 
 
-def main(out: str, v1_out: str | None = None) -> None:
-    config = GenerationConfig(refiner="none", rotations=2)
+def main(
+    out: str, v1_out: str | None = None, refiner: str = "none", objects: tuple[str, ...] = OBJECTS, rotations: int = 2
+) -> None:
+    config = GenerationConfig(refiner=refiner, rotations=rotations)
     view_space = build_view_space(config.view_space)
     targets = [(open_location(out), SCHEMA_VERSION)] + ([(open_location(v1_out), 1)] if v1_out else [])
     for location, version in targets:
@@ -46,7 +50,7 @@ def main(out: str, v1_out: str | None = None) -> None:
     refiner = make_refiner(config)
     with tempfile.TemporaryDirectory() as folder:
         listing = Path(folder) / "objects.txt"
-        listing.write_text("".join(f"{source}\n" for source in OBJECTS))
+        listing.write_text("".join(f"{source}\n" for source in objects))
         specs = read_objects_file(listing).objects
     for spec in specs:
         prepared = prepare_object(spec, config)

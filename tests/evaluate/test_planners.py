@@ -11,7 +11,8 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
-from datagen.errors import PlannerError
+from datagen.errors import DatagenError, PlannerError
+from datagen.evaluate import planners as planners_module
 from datagen.evaluate.episode import run_episode
 from datagen.evaluate.planners import (
     PLANNER_HELP,
@@ -344,17 +345,19 @@ def test_make_planner_bad_view_count(spec_text: str) -> None:
     assert repr(spec_text) in str(info.value)
 
 
+@pytest.mark.skipif(importlib.util.find_spec("osvp") is None, reason="the osvp package is not installed")
 def test_make_planner_missing_checkpoint(tmp_path: Path) -> None:
+    """osvp's factory (the ``osvp`` planner plugin) refuses the path; its error goes through as it is."""
     missing = tmp_path / "missing" / "model.pt"
-    with pytest.raises(PlannerError, match="checkpoint not found") as info:
+    with pytest.raises(DatagenError, match="checkpoint not found") as info:
         make_planner(f"osvp:{missing}")
     assert str(missing) in str(info.value) and "osvp train" in str(info.value)
-    with pytest.raises(PlannerError, match="checkpoint not found"):
+    with pytest.raises(DatagenError, match="checkpoint not found"):
         make_planner(f"osvp:{tmp_path}")  # a folder is not a checkpoint
 
 
-@pytest.mark.skipif(importlib.util.find_spec("osvp") is not None, reason="the osvp package is installed")
-def test_make_planner_without_the_osvp_package(tmp_path: Path) -> None:
+def test_make_planner_without_the_osvp_package(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(planners_module, "installed_plugins", dict)  # no planner plugin installed
     checkpoint = tmp_path / "model.pt"
     checkpoint.write_bytes(b"not really a checkpoint")
     with pytest.raises(PlannerError, match="needs the osvp package; install it") as info:

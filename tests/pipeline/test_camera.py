@@ -1,4 +1,4 @@
-"""Camera (PIPELINE.md section 2): look-at poses, projection, and the cropped pixel rays.
+"""Camera (docs/pipeline.md section 2): look-at poses, projection, and the cropped pixel rays.
 
 The cropped ray set is checked against an analytic truth computed here: every full-frame pixel whose
 ray meets the sphere, by the ray-sphere discriminant.

@@ -1,4 +1,4 @@
-"""Input cases: MA-SCVP's long-tail sampling (PIPELINE.md section 6, datagen/pipeline/cases.py).
+"""Input cases: MA-SCVP's long-tail sampling (docs/pipeline.md section 6, datagen/pipeline/cases.py).
 
 A hand-derived example pins the greedy trajectories, the gains G[m], the candidates, need(m) and the
 seeded draws exactly; properties over random visibility sets check the same rules against a plain
@@ -197,7 +197,7 @@ def test_empty_views_and_no_keys() -> None:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# A plain reference implementation, written from PIPELINE.md section 6
+# A plain reference implementation, written from docs/pipeline.md section 6
 # ---------------------------------------------------------------------------------------------------------
 
 

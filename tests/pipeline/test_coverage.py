@@ -1,4 +1,4 @@
-"""Filter and coverage (PIPELINE.md section 5, datagen/pipeline/coverage.py) and how labels use them
+"""Filter and coverage (docs/pipeline.md section 5, datagen/pipeline/coverage.py) and how labels use them
 (section 7, datagen/pipeline/task.py): P_full and the coverage masks on hand-built P_i, what alpha = 1 and
 alpha = n mean for labels, empty universes, and relabelling a task for another alpha from its
 stored sets."""

@@ -1,4 +1,4 @@
-"""Imaging (PIPELINE.md section 3) on an icosphere, against truths computed here.
+"""Imaging (docs/pipeline.md section 3) on an icosphere, against truths computed here.
 
 - Exact first hits: brute-force Möller–Trumbore in float64 over every face of the mesh.
 - Hit counts: the analytic ray-sphere discriminant. The icosphere is convex and lies between its

@@ -1,4 +1,4 @@
-"""Imaging of the real meshes of ../shared/meshes, cross-checked against Open3D (PIPELINE.md 1.7, 3).
+"""Imaging of the real meshes of ../shared/meshes, cross-checked against Open3D (docs/pipeline.md sections 1.7 and 3).
 
 Every mesh is prepared at size 0.15 m, rotation 0, and imaged in both modes from the 32 built-in
 views. The independent reference (`open3d_reference`) rebuilds the same rays from the intrinsics

@@ -1,4 +1,4 @@
-"""Object preparation (PIPELINE.md section 1): bad input gives one-line ObjectErrors naming the file and
+"""Object preparation (docs/pipeline.md section 1): bad input gives one-line ObjectErrors naming the file and
 the fix; good input is loaded, converted to metres, turned z-up, centred and sized
 (datagen/pipeline/objects/prepare.py)."""
 

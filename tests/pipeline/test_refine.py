@@ -1,4 +1,4 @@
-"""The refiner interface (PIPELINE.md section 4, datagen/pipeline/refine): the band, P(O) = keys(O) united
+"""The refiner interface (docs/pipeline.md section 4, datagen/pipeline/refine): the band, P(O) = keys(O) united
 with R(O), the ``none`` refiner, the factory (`make_refiner`), and the ``poco`` refiner running in a
 process where training code cannot be imported."""
 

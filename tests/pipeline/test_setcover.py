@@ -1,4 +1,4 @@
-"""Labels (PIPELINE.md section 7, datagen/pipeline/setcover.py) against an independent brute-force oracle
+"""Labels (docs/pipeline.md section 7, datagen/pipeline/setcover.py) against an independent brute-force oracle
 (tests/support/setcover_oracle.py): the minimum cardinality and the lexicographic tie-break, through every
 solving path (the public path, the per-task reduction, the exact branch-and-bound search for the size and
 the tie-break, HiGHS's MIP and weighted-MIP fallbacks and the fix-one-view-at-a-time tie-break), under

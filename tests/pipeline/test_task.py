@@ -1,4 +1,4 @@
-"""One task in memory (datagen/pipeline/task.py, PIPELINE.md sections 4-9): cases, labels, points, metadata,
+"""One task in memory (datagen/pipeline/task.py, docs/pipeline.md sections 4-9): cases, labels, points, metadata,
 determinism and relabelling, on the fastest built-in in both imaging modes; the number of cases per
 task on real meshes (run with ``-s`` to see it)."""
 

@@ -1,4 +1,4 @@
-"""View space (PIPELINE.md section 2): the built-in table, the seeded generator and view-space files.
+"""View space (docs/pipeline.md section 2): the built-in table, the seeded generator and view-space files.
 
 Truths used here are independent of the code under test: separations are recomputed from scratch with
 arccos of dot products, the built-in table is compared with its documented properties (32 Tammes

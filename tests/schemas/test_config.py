@@ -29,7 +29,7 @@ def builtin_view_space_text() -> str:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Defaults (design/PIPELINE.md sections 0-7)
+# Defaults (docs/pipeline.md sections 0-7)
 # ---------------------------------------------------------------------------------------------------------
 
 
@@ -155,14 +155,17 @@ def test_round_trip_keeps_float_bits(tmp_path: Path) -> None:
     assert loaded.config_hash() == config.config_hash()
 
 
-@pytest.mark.parametrize(("field", "other"), [("label_tie_break", "coverage"), ("label_cover_cap", 64)])
+@pytest.mark.parametrize(
+    ("field", "other"), [("label_tie_break", "coverage"), ("label_cover_cap", 64), ("poco_version", 2)]
+)
 def test_fields_added_later_keep_older_hashes_at_their_default(field: str, other: object) -> None:
-    """A dataset made before ``label_tie_break`` (its labels are the 'index' rule's) or
-    ``label_cover_cap`` (version 1: no covers listed) existed keeps its hash."""
+    """A dataset made before ``label_tie_break`` (its labels are the 'index' rule's),
+    ``label_cover_cap`` (version 1: no covers listed) or ``poco_version`` (cKDTree) existed keeps its hash."""
     config = GenerationConfig()
     data = config.model_dump(mode="json")
     data["poco_weights"] = config.canonical_dict()["poco_weights"]
-    before_the_fields = {k: v for k, v in data.items() if k not in ("label_tie_break", "label_cover_cap")}
+    later = ("label_tie_break", "label_cover_cap", "poco_version")
+    before_the_fields = {k: v for k, v in data.items() if k not in later}
     assert field not in config.canonical_dict()
     assert config.config_hash() == hashlib.sha256(canonical_json(before_the_fields).encode()).hexdigest()
     assert config_from_dict({field: other}).canonical_dict()[field] == other
@@ -188,6 +191,7 @@ CHANGES = [
     {"poco_preset": "tiny_sv"},
     {"poco_threshold": 0.6},
     {"finetune_steps": 10},
+    {"poco_version": 2},
     {"poisson_depth": 9},
     {"alpha": 11},
     {"empty_labels": "drop"},

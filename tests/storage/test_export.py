@@ -1,5 +1,5 @@
-"""storage.export.export_air and ``datagen shards export``: the authors' text layout (authors-pipeline.md
-7.2), checked file by file against the pipeline's own samples, and read back by a mini reader that
+"""storage.export.export_air and ``datagen shards export``: the authors' text layout (docs/authors-code.md
+section 7.2), checked file by file against the pipeline's own samples, and read back by a mini reader that
 follows AIR's COSC_Dataset and train.py line for line in what they read; their recall is computed on
 what it returns."""
 
@@ -80,7 +80,7 @@ def exportable(built: Built) -> dict[str, object]:
 
 
 def cosc_load(root: Path, split_file: str, num_views: int = 32) -> list[dict[str, object]]:
-    """AIR's train.py ``build_dataset`` and COSC_Dataset, as they read (authors-pipeline.md 7.2): object
+    """AIR's train.py ``build_dataset`` and COSC_Dataset, as they read (docs/authors-code.md section 7.2): object
     names are every line of the split file, stripped; under ``<root>/<obj>/`` every entry is a rotate
     dir, and in it every file whose name starts with 'cloud' is a sample; its companions are the whole
     path with 'cloud' replaced by 'state' and by 'ids'; float32 "x y z" rows, a float32 state,

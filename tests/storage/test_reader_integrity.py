@@ -13,6 +13,8 @@ import json
 import os
 import shutil
 from collections.abc import Callable
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -91,21 +93,78 @@ def truncate_chunk(root: Path, array: str) -> None:
     os.truncate(path, path.stat().st_size // 2)
 
 
-DAMAGES: dict[str, Callable[[Path, str], None]] = {"deleted": delete_chunk, "emptied": empty_chunk}
+def unreadable_metadata(root: Path, metadata: str) -> None:
+    (root / SHARD / metadata).write_text('{"zarr_format": ')
 
 
-@pytest.mark.parametrize("array", ["points_keys", "masks", "observed_offsets"])
-@pytest.mark.parametrize("damage", sorted(DAMAGES))
-def test_missing_chunk_file_is_an_error_not_fill_values(ds: Path, damage: str, array: str) -> None:
-    DAMAGES[damage](ds, array)
+PARTIAL = f"{SHARD}/points_keys/c/0/0.0123456789abcdef0123456789abcdef.partial"
+"""The temporary of an interrupted chunk write (one of `LEFTOVERS`)."""
+
+
+def partial_beside_a_deleted_chunk(root: Path) -> None:
+    """The chunk file gone, its whole content left in a ``.partial`` temporary beside it."""
+    stored = chunk(root, "points_keys")
+    (root / PARTIAL).write_bytes(stored.read_bytes())
+    stored.unlink()
+
+
+@dataclass(frozen=True)
+class ShardDamage:
+    """One way to damage the first task's shard, and what reading a row of it must then say."""
+
+    damage: Callable[[Path], None]
+    names: tuple[str, ...]
+    """Parts of the `StorageError` line, beside the dataset and the fix (`assert_one_line`)."""
+    validate_names: tuple[str, ...]
+    """Parts of one `validate` problem line (`validate` never raises on a damaged file)."""
+    lost_chunk: bool = False
+    """A chunk file lost (not fill values): the line also names the repair, and the other task still reads."""
+
+
+SHARD_DAMAGES: dict[str, ShardDamage] = {
+    **{
+        f"{how}-{array}": ShardDamage(partial(damage, array=array), (SHARD, array), (SHARD, array), lost_chunk=True)
+        for how, damage in (("deleted", delete_chunk), ("emptied", empty_chunk))
+        for array in ("points_keys", "masks", "observed_offsets")
+    },
+    **{
+        f"truncated-{array}": ShardDamage(
+            partial(truncate_chunk, array=array),
+            (f"{SHARD}/{array}", "truncated or corrupt"),
+            (SHARD, "truncated or corrupt"),
+        )
+        for array in ("points_keys", "masks")
+    },
+    "missing array": ShardDamage(
+        lambda root: shutil.rmtree(root / SHARD / "points_keys"), (SHARD, "points_keys"), (SHARD, "points_keys")
+    ),
+    **{
+        f"unreadable {metadata}": ShardDamage(
+            partial(unreadable_metadata, metadata=metadata), (SHARD, metadata), (SHARD, "metadata")
+        )
+        for metadata in ("zarr.json", "points_keys/zarr.json")
+    },
+    "missing shard group": ShardDamage(
+        lambda root: shutil.rmtree(root / SHARD), (SHARD, "missing"), (SHARD, "cannot open shard")
+    ),
+    "partial file does not stand in for a deleted chunk": ShardDamage(
+        partial_beside_a_deleted_chunk, (SHARD, "points_keys"), (SHARD, "points_keys")
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(SHARD_DAMAGES))
+def test_damaged_shard_is_one_line_naming_it(ds: Path, case: str) -> None:
+    damage = SHARD_DAMAGES[case]
+    damage.damage(ds)
     dataset = open_dataset(str(ds))  # the index is intact: opening works
-    row = rows_of(dataset, FIRST)[0]
     with pytest.raises(StorageError) as caught:
-        dataset[row]
-    assert_one_line(caught.value, ds, SHARD, array, f"datagen shards repair {ds}")
-    # The intact task still reads.
-    assert len(dataset[rows_of(dataset, SECOND)[0]]["points"]) > 0
-    assert_validate_names(ds, SHARD, array)
+        dataset[rows_of(dataset, FIRST)[0]]
+    repair = (f"datagen shards repair {ds}",) if damage.lost_chunk else ()
+    assert_one_line(caught.value, ds, *damage.names, *repair)
+    if damage.lost_chunk:  # the intact task still reads
+        assert len(dataset[rows_of(dataset, SECOND)[0]]["points"]) > 0
+    assert_validate_names(ds, *damage.validate_names)
 
 
 def test_missing_chunk_file_stops_iteration_and_the_torch_dataset(ds: Path) -> None:
@@ -127,44 +186,6 @@ def test_missing_chunk_file_stops_iteration_and_the_torch_dataset(ds: Path) -> N
     with pytest.raises(StorageError):  # re-raised in the parent from a worker process
         for _ in DataLoader(torch_dataset, batch_size=16, num_workers=1, multiprocessing_context="fork"):
             pass
-
-
-@pytest.mark.parametrize("array", ["points_keys", "masks"])
-def test_truncated_chunk_names_the_array(ds: Path, array: str) -> None:
-    truncate_chunk(ds, array)
-    dataset = open_dataset(str(ds))
-    with pytest.raises(StorageError) as caught:
-        dataset[rows_of(dataset, FIRST)[0]]
-    assert_one_line(caught.value, ds, f"{SHARD}/{array}", "truncated or corrupt")
-    assert_validate_names(ds, SHARD, "truncated or corrupt")
-
-
-def test_missing_array_names_it(ds: Path) -> None:
-    shutil.rmtree(ds / SHARD / "points_keys")
-    dataset = open_dataset(str(ds))
-    with pytest.raises(StorageError) as caught:
-        dataset[rows_of(dataset, FIRST)[0]]
-    assert_one_line(caught.value, ds, SHARD, "points_keys")
-    assert_validate_names(ds, SHARD, "points_keys")
-
-
-@pytest.mark.parametrize("metadata", ["zarr.json", "points_keys/zarr.json"])
-def test_unreadable_zarr_metadata_names_it(ds: Path, metadata: str) -> None:
-    (ds / SHARD / metadata).write_text('{"zarr_format": ')
-    dataset = open_dataset(str(ds))
-    with pytest.raises(StorageError) as caught:
-        dataset[rows_of(dataset, FIRST)[0]]
-    assert_one_line(caught.value, ds, SHARD, metadata)
-    assert_validate_names(ds, SHARD, "metadata")
-
-
-def test_missing_shard_group(ds: Path) -> None:
-    shutil.rmtree(ds / SHARD)
-    dataset = open_dataset(str(ds))
-    with pytest.raises(StorageError) as caught:
-        dataset[rows_of(dataset, FIRST)[0]]
-    assert_one_line(caught.value, ds, SHARD, "missing")
-    assert_validate_names(ds, SHARD, "cannot open shard")
 
 
 def test_each_shard_is_listed_once_per_reader(ds: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -326,7 +347,7 @@ LEFTOVERS = (
     "index.parquet.tmp-0123456789abcdef0123456789abcdef",
     f"{commit_path(FIRST)}.tmp-0123456789abcdef0123456789abcdef",
     f"{FRAGMENT}.tmp-0123456789abcdef0123456789abcdef",
-    f"{SHARD}/points_keys/c/0/0.0123456789abcdef0123456789abcdef.partial",
+    PARTIAL,
 )
 
 
@@ -344,16 +365,6 @@ def test_temporary_leftovers_are_warnings_and_never_read(ds: Path, clean: Path) 
     assert dataset.index.equals(reference.index)
     for i in range(len(dataset)):
         np.testing.assert_array_equal(dataset[i]["points"], reference[i]["points"])
-
-
-def test_partial_file_does_not_stand_in_for_a_missing_chunk(ds: Path) -> None:
-    stored = chunk(ds, "points_keys")
-    (ds / LEFTOVERS[-1]).write_bytes(stored.read_bytes())
-    stored.unlink()
-    dataset = open_dataset(str(ds))
-    with pytest.raises(StorageError) as caught:
-        dataset[rows_of(dataset, FIRST)[0]]
-    assert_one_line(caught.value, ds, SHARD, "points_keys")
 
 
 def test_a_failed_atomic_write_leaves_no_temporary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

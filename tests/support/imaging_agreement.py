@@ -1,4 +1,4 @@
-"""What our imaging and an independent Open3D caster see of one real mesh (PIPELINE.md 1.7, 3).
+"""What our imaging and an independent Open3D caster see of one real mesh (docs/pipeline.md sections 1.7 and 3).
 
 Every mesh is prepared at size 0.15 m, rotation 0, and imaged in both modes from the 32 built-in
 views; the reference (`open3d_reference`) rebuilds the same rays from the intrinsics and the view
@@ -20,7 +20,7 @@ from datagen.pipeline.ground_truth import GroundTruth, sample_ground_truth
 from datagen.pipeline.imaging import SPHERE_MARGIN, TaskImaging
 from datagen.pipeline.keys import key_centres, unpack_keys
 from datagen.pipeline.objects.prepare import prepare_object
-from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, file_object_id
+from datagen.pipeline.objects.spec import ObjectOptions, mesh_file_spec
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.scanning import scan_task
 from datagen.pipeline.viewspace import build_view_space
@@ -75,13 +75,7 @@ class MeshResult:
 
 @functools.cache
 def mesh_result(path: Path) -> MeshResult:
-    options = ObjectOptions(size=SIZE_M)
-    spec = ObjectSpec(
-        source=str(path),
-        name=path.stem,
-        options=options,
-        object_id=file_object_id(path.read_bytes(), options),
-    )
+    spec = mesh_file_spec(path, ObjectOptions(size=SIZE_M))
     prepared = prepare_object(spec, TARGETS)
     vertices = prepared.task_vertices(0, TARGETS.rotations)
     faces = prepared.faces

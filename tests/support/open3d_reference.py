@@ -1,4 +1,4 @@
-"""An independent reference for imaging (PIPELINE.md section 3), built on Open3D's RaycastingScene.
+"""An independent reference for imaging (docs/pipeline.md section 3), built on Open3D's RaycastingScene.
 
 Used by the tests (to cross-check `datagen.pipeline.imaging` view by view) and by ``benchmarks/imaging.py``
 (to time Open3D on exactly the rays our imaging casts). Nothing here calls the code under test except

@@ -1,4 +1,4 @@
-"""An independent brute-force oracle for labels (PIPELINE.md section 7). It never imports
+"""An independent brute-force oracle for labels (docs/pipeline.md section 7). It never imports
 ``datagen.pipeline.setcover``.
 
 The label of a universe (rows = bit masks of the views covering each element) is the

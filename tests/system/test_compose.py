@@ -182,7 +182,8 @@ def test_dockerfile_builds_one_datagen_for_every_node() -> None:
     copied = sorted(re.findall(r"^COPY (\S+) \./\1$", text, re.MULTILINE))
     assert [package for package in packages if package not in copied] == [], "a package of pyproject is not copied"
     assert re.search(r"^COPY pyproject\.toml ", text, re.MULTILINE)
-    (extras,) = re.findall(r'pip install "\.\[([a-z0-9,]+)\]"', text)  # this checkout, as a package
+    assert re.search(r"^COPY reader \./reader$", text, re.MULTILINE), "the reader distribution is not copied"
+    (extras,) = re.findall(r'pip install \./reader "\.\[([a-z0-9,]+)\]"', text)  # this checkout, as packages
     assert sorted(extras.split(",")) == sorted(
         set(extras.split(",")) & set(project["project"]["optional-dependencies"])
     )

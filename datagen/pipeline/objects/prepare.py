@@ -1,4 +1,4 @@
-"""Object preparation (PIPELINE.md section 1): load, units, up axis, centre, variant, size, yaw.
+"""Object preparation (docs/pipeline.md section 1): load, units, up axis, centre, variant, size, yaw.
 
 Every failure a user's file can cause raises `ObjectError` with one line naming the file and the
 fix; the caller records it and goes on with the other objects.

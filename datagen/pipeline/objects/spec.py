@@ -1,10 +1,11 @@
-"""What one line of an objects file names: the object, its options and its identity (PIPELINE.md 0)."""
+"""What one line of an objects file names: the object, its options and its identity (docs/pipeline.md section 0)."""
 
 from __future__ import annotations
 
 import hashlib
 import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 Units = Literal["auto", "m", "mm"]
@@ -67,6 +68,14 @@ def file_object_id(mesh_bytes: bytes, options: ObjectOptions) -> str:
     digest = hashlib.sha256(mesh_bytes)
     digest.update(b"\0" + options.canonical().encode())
     return digest.hexdigest()
+
+
+def mesh_file_spec(path: Path, options: ObjectOptions) -> ObjectSpec:
+    """The spec of a mesh file made in code (benchmarks, tests), named by its stem; an objects file
+    adds its line, a ``name=`` and path rules (`datagen.pipeline.objects.objects_file`)."""
+    return ObjectSpec(
+        source=str(path), name=path.stem, options=options, object_id=file_object_id(path.read_bytes(), options)
+    )
 
 
 def builtin_object_id(generator: dict[str, Any], options: ObjectOptions) -> str:

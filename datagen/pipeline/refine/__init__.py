@@ -1,4 +1,4 @@
-"""Refiners (PIPELINE.md section 4): R(O) = the band keys a refiner predicts occupied.
+"""Refiners (docs/pipeline.md section 4): R(O) = the band keys a refiner predicts occupied.
 
 ``none`` (the raw observation), ``carve`` (space carving), ``poisson`` (screened Poisson surface,
 needs Open3D) and ``poco`` (the learned network) share one interface; `make_refiner` picks one.

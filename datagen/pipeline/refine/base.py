@@ -23,7 +23,7 @@ from datagen.pipeline.keys import KeyGrid, unpack_keys
 
 @dataclass(frozen=True)
 class RefineRequest:
-    """One observation to refine, with what seeds its randomness (PIPELINE.md section 9)."""
+    """One observation to refine, with what seeds its randomness (docs/pipeline.md section 9)."""
 
     observation: Observation
     seed: int

@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 
 from datagen.pipeline.refine.base import RefineRequest, band_keys
-from datagen.pipeline.refine.freespace import sensor_empty
+from datagen.pipeline.refine.freespace import DepthBuffers, sensor_empty
 from schemas.config import GenerationConfig
 
 
@@ -23,6 +23,7 @@ class CarveRefiner:
 
     def __init__(self, config: GenerationConfig) -> None:
         self.config = config
+        self.depth_buffers = DepthBuffers()  # a task's cases reuse its views' buffers (same result)
 
     def refine(self, requests: Sequence[RefineRequest]) -> list[npt.NDArray[np.int64]]:
         config = self.config
@@ -31,6 +32,8 @@ class CarveRefiner:
             observation = request.observation
             band = band_keys(observation.keys, config.band_keys_sq)
             unknown = np.setdiff1d(band, observation.keys, assume_unique=True)
-            empty = sensor_empty(unknown, observation, config.camera, config.voxel_size, config.grid_offset)
+            empty = sensor_empty(
+                unknown, observation, config.camera, config.voxel_size, config.grid_offset, self.depth_buffers
+            )
             results.append(unknown[~empty])
         return results

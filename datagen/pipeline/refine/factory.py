@@ -10,13 +10,16 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from datagen.errors import ConfigError
 from datagen.pipeline.refine.base import Refiner
 from datagen.pipeline.refine.carve import CarveRefiner
 from datagen.pipeline.refine.none import NoRefiner
 from schemas.config import GenerationConfig
+
+if TYPE_CHECKING:
+    from datagen.pipeline.refine.poco.refiner import PocoRefiner
 
 RefinerBuilder = Callable[[GenerationConfig, str], Refiner]
 """(config, device) -> the refiner; ``device`` only matters to a learned refiner."""
@@ -29,11 +32,11 @@ def poco_weights_path(config: GenerationConfig) -> Path:
 
 
 @functools.lru_cache(maxsize=4)
-def _load_poco(path: str, preset: str, mtime_ns: int, device: str) -> tuple[Any, str]:
+def _load_poco(path: str, preset: str | None, mtime_ns: int, device: str) -> tuple[Any, str]:
     """The model and the sha256 of its file, once per worker process (per file version, preset, device).
 
     Ray keeps worker processes alive between tasks, so a worker loads the weights once and every
-    later task on it reuses them.
+    later task on it reuses them. Preset None: the one saved with the weights (`load_checkpoint`).
     """
     from datagen.pipeline.refine.poco.checkpoint import load_checkpoint
     from datagen.pipeline.refine.poco.refiner import weights_sha256
@@ -41,7 +44,8 @@ def _load_poco(path: str, preset: str, mtime_ns: int, device: str) -> tuple[Any,
     try:
         model = load_checkpoint(path, preset).to(device)
     except (RuntimeError, ValueError) as error:
-        raise ConfigError(f"{path}: cannot load POCO weights as preset {preset!r} ({error})") from None
+        as_what = "with their saved preset" if preset is None else f"as preset {preset!r}"
+        raise ConfigError(f"{path}: cannot load POCO weights {as_what} ({error})") from None
     return model, weights_sha256(Path(path))
 
 
@@ -64,6 +68,15 @@ def build_poisson(config: GenerationConfig, device: str) -> Refiner:
 
 
 def build_poco(config: GenerationConfig, device: str) -> Refiner:
+    return load_poco_refiner(config, device, config.poco_preset)
+
+
+def load_poco_refiner(config: GenerationConfig, device: str = "cpu", preset: str | None = None) -> PocoRefiner:
+    """The ``poco`` refiner of the config's weights (`poco_weights_path`), threshold and fine-tuning.
+
+    A worker's preset is the config's (`build_poco`); ``datagen poco eval`` passes None, the preset
+    saved with the weights, unless its ``--preset`` names one.
+    """
     try:
         from datagen.pipeline.refine.poco.refiner import PocoRefiner
     except ImportError as error:
@@ -73,7 +86,7 @@ def build_poco(config: GenerationConfig, device: str) -> Refiner:
     path = poco_weights_path(config)
     if not path.is_file():
         raise ConfigError(f"{path}: POCO weights file not found; set poco_weights to a weights file or 'builtin'")
-    model, sha = _load_poco(str(path.resolve()), config.poco_preset, path.stat().st_mtime_ns, device)
+    model, sha = _load_poco(str(path.resolve()), preset, path.stat().st_mtime_ns, device)
     return PocoRefiner(config, model, sha, config.poco_threshold, config.finetune_steps, device=device)
 
 

@@ -11,6 +11,7 @@ import json
 import sys
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ from osvp.loss import DEFAULT_LAMBDA, TARGETS
 from osvp.metrics import decoded_metrics
 from osvp.network import PRESETS
 from osvp.prior import ViewStatePrior
+from osvp.stream import MEMORY_LIMIT_GB, VAL_CAP, choose_streaming
 from osvp.train import EpochReport, TrainOptions, covers_needed, predict_rows, run_rows, train
 from schemas.errors import DatagenError
 
@@ -97,6 +99,30 @@ def _parser() -> argparse.ArgumentParser:
             default=1.0,
             help="train on this seeded, nested fraction of the training samples, in (0, 1]; validation is unchanged",
         )
+        sub.add_argument(
+            "--stream",
+            action="store_true",
+            default=None,
+            help="read the training samples shard by shard every epoch instead of holding them in memory "
+            "(chosen by itself when the dataset needs more than --memory-limit)",
+        )
+        sub.add_argument(
+            "--memory-limit",
+            type=float,
+            default=MEMORY_LIMIT_GB,
+            metavar="GB",
+            help="stream when the samples would need more memory than this (estimated from the index; default "
+            "%(default)g)",
+        )
+        sub.add_argument("--workers", type=int, default=2, help="DataLoader workers reading shards when streaming")
+        sub.add_argument("--shuffle-buffer", type=int, default=4096, help="samples the stream mixes at once")
+        sub.add_argument(
+            "--val-cap",
+            type=int,
+            default=VAL_CAP,
+            help="when streaming, validate on at most this many validation samples (a seeded draw, held in "
+            "memory; 0: all)",
+        )
 
     train_cmd = commands.add_parser(
         "train", help="train a planner; best.pt holds the best validation F1 (nearest minimum cover when known)"
@@ -154,7 +180,20 @@ def _options(args: argparse.Namespace, out: Path, lambda_: float, resume: bool) 
         target=args.target,
         max_objects=args.max_objects,
         sample_fraction=args.sample_fraction,
+        stream=args.stream,
+        memory_limit_gb=args.memory_limit,
+        workers=args.workers,
+        shuffle_buffer=args.shuffle_buffer,
+        val_cap=args.val_cap,
     )
+
+
+def _streaming(options: TrainOptions) -> bool:
+    """Whether the run streams; says so in one line when it does."""
+    streaming, why = choose_streaming(options.data, options.stream, options.memory_limit_gb, options.source)
+    if streaming:
+        _note(why)
+    return streaming
 
 
 def _load(url: str, source: str = "points", covers_for: str | None = None) -> SampleBank:
@@ -169,7 +208,9 @@ def _load(url: str, source: str = "points", covers_for: str | None = None) -> Sa
 def _train(args: argparse.Namespace) -> int:
     options = _options(args, args.out, args.lambda_, args.resume)
     options.check()
-    bank = _load(args.data, args.source, covers_needed(options.target))
+    streaming = _streaming(options)
+    bank = None if streaming else _load(args.data, args.source, covers_needed(options.target))
+    options = replace(options, stream=streaming)
     outcome = train(options, on_epoch=_epoch_line, on_batch=_bar("training"), bank=bank)
     figure = SELECTION[outcome.best_metric]
     _note(f"best validation {figure} {outcome.best_score:.4f} at epoch {outcome.best_epoch}; {args.out / 'best.pt'}")
@@ -265,12 +306,13 @@ def _sweep(args: argparse.Namespace) -> int:
         lambdas = [float(v) for v in args.lambdas.split(",")]
     except ValueError:
         raise DataError(f"--lambdas {args.lambdas!r}: give numbers separated by commas, e.g. 0.75,1.25") from None
-    bank = _load(args.data, args.source, covers_needed(args.target))
+    streaming = _streaming(_options(args, args.out, lambdas[0], False))
+    bank = None if streaming else _load(args.data, args.source, covers_needed(args.target))
     rows = []
     for lambda_ in lambdas:
         out = args.out / f"lambda-{lambda_:g}"
         resume = (out / "last.pt").exists()
-        options = _options(args, out, lambda_, resume)
+        options = replace(_options(args, out, lambda_, resume), stream=streaming)
         done = load_checkpoint(out / "last.pt").epoch if resume else 0
         _note(f"lambda {lambda_:g}: {out}" + (f" (resuming after epoch {done})" if resume else ""))
         outcome = train(options, on_epoch=_epoch_line, on_batch=_bar("training"), bank=bank)

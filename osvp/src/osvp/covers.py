@@ -17,6 +17,8 @@ import numpy.typing as npt
 
 from storage import LabelAmbiguity
 from storage.covers import cover_marginals, covers_universe, nearest_cover
+from storage.memory import PackedCovers
+from storage.samples import mask_bits
 
 MaskArray = npt.NDArray[np.uint64]
 FloatArray = npt.NDArray[np.float32]
@@ -34,8 +36,7 @@ def bits_to_masks(bits: npt.ArrayLike) -> MaskArray:
 
 def masks_to_bits(masks: npt.ArrayLike, num_views: int) -> BoolArray:
     """(K,) uint64 masks -> (K, n) bool rows."""
-    values = np.asarray(masks, dtype=np.uint64).reshape(-1)
-    return ((values[:, None] >> np.arange(num_views, dtype=np.uint64)[None, :]) & np.uint64(1)).astype(bool)
+    return mask_bits(np.asarray(masks, dtype=np.uint64).reshape(-1), num_views)
 
 
 def _pack(pieces: Sequence[MaskArray]) -> tuple[MaskArray, npt.NDArray[np.int64]]:
@@ -83,6 +84,33 @@ class CoverBank:
             marginals=(np.stack(marginals) if marginals else np.zeros((0, num_views))).astype(np.float32),
             counts=np.asarray([a.count for a in ambiguities], dtype=np.int64),
             exact=np.asarray([a.exact for a in ambiguities], dtype=bool),
+        )
+
+    @classmethod
+    def from_packed(cls, packed: PackedCovers, view_states: npt.ArrayLike, num_views: int) -> CoverBank:
+        """What `storage.memory.load_memory` read (every sample's covers and U rows as masks with
+        offsets), with the marginals `build` would compute, without reading the dataset again."""
+        sizes = np.diff(packed.cover_offsets)
+        listed = sizes > 0
+        starts = packed.cover_offsets[:-1][listed]
+        held = np.zeros((sizes.size, num_views), dtype=np.int64)
+        for view in range(num_views):  # one view at a time: a byte per listed cover, not a row
+            column = ((packed.covers >> np.uint64(view)) & np.uint64(1)).astype(np.uint8)
+            if starts.size:
+                held[listed, view] = np.add.reduceat(column, starts, dtype=np.int64)
+        # sums of 0/1 are exact, so held / size is `cover_marginals`' mean to the last bit
+        marginals = np.divide(held, sizes[:, None], out=np.zeros(held.shape), where=sizes[:, None] > 0)
+        return cls(
+            num_views=num_views,
+            covers=packed.covers,
+            cover_offsets=packed.cover_offsets,
+            universe=packed.universe,
+            universe_offsets=packed.universe_offsets,
+            view_states=np.asarray(view_states, dtype=np.uint64).reshape(-1),
+            support=masks_to_bits(packed.support, num_views).astype(np.float32),
+            marginals=marginals.astype(np.float32),
+            counts=packed.counts,
+            exact=packed.exact,
         )
 
     def __len__(self) -> int:

@@ -1,10 +1,11 @@
 """Samples in memory for training: read once through `storage`, then batched without a reader.
 
 A CPU epoch over a few thousand samples must not wait on Zarr reads, so `SampleBank.load` reads
-every sample's integer keys once (shard by shard, the reader's fast order) and keeps them packed
-in one int16 array with offsets; a batch is then a numpy gather. Each sample is resampled to a
-fixed point count from its own stream (seed, epoch, sample), so batches never depend on batch
-size, order or device, and a resumed run sees exactly the tensors an uninterrupted one would.
+every sample's integer keys once through `storage.memory` (shard by shard, the reader's fast order),
+packed in one int16 array with offsets; a batch is then a numpy gather. Each sample is resampled to
+a fixed point count from its own stream (seed, epoch, sample), so batches never depend on batch
+size, order or device, and a resumed run sees exactly the tensors an uninterrupted one would; the
+conversions and the splits are `storage.samples`' (the one sample contract of every reader).
 A version-2 dataset also gives every sample's minimum covers (`osvp.covers.CoverBank`), which the
 ambiguity-aware targets and metrics need; a version-1 dataset has none (`require_covers` says how
 to add them).
@@ -26,6 +27,8 @@ import torch
 import storage
 from osvp.covers import CoverBank
 from schemas.errors import DatagenError
+from storage.memory import MemoryDataset, load_memory
+from storage.samples import SplitError, split_by_object, split_by_sample
 
 Split = Literal["samples", "objects"]
 
@@ -58,28 +61,61 @@ class Batch:
 
 @dataclass(frozen=True)
 class SampleBank:
-    """Every sample of a dataset: keys packed with offsets, view states and labels as bit rows."""
+    """Every sample of a dataset in memory (`storage.memory.MemoryDataset`: keys packed with
+    offsets, view states and labels as bit rows), with its minimum covers as a `CoverBank`."""
 
-    url: str
-    config_hash: str
-    keys: npt.NDArray[np.int16]
-    offsets: npt.NDArray[np.int64]
-    view_state: npt.NDArray[np.float32]
-    labels: npt.NDArray[np.float32]
-    object_ids: tuple[str, ...]
-    """Object of each sample."""
-    voxel_size: float
-    grid_offset: npt.NDArray[np.float64]
-    schema_version: int = 1
+    samples: MemoryDataset
     covers: CoverBank | None = None
     """Every sample's minimum covers; None for a version-1 dataset."""
 
     @property
+    def url(self) -> str:
+        return self.samples.url
+
+    @property
+    def config_hash(self) -> str:
+        """The dataset's own record (``dataset.json``): recomputing it would hash this machine's datagen files."""
+        return self.samples.config_hash
+
+    @property
+    def keys(self) -> npt.NDArray[np.int16]:
+        return self.samples.keys
+
+    @property
+    def offsets(self) -> npt.NDArray[np.int64]:
+        return self.samples.offsets
+
+    @property
+    def view_state(self) -> npt.NDArray[np.float32]:
+        return self.samples.view_state
+
+    @property
+    def labels(self) -> npt.NDArray[np.float32]:
+        return self.samples.labels
+
+    @property
+    def object_ids(self) -> tuple[str, ...]:
+        """Object of each sample."""
+        return self.samples.object_ids
+
+    @property
+    def voxel_size(self) -> float:
+        return self.samples.voxel_size
+
+    @property
+    def grid_offset(self) -> npt.NDArray[np.float64]:
+        return self.samples.grid_offset
+
+    @property
+    def schema_version(self) -> int:
+        return self.samples.schema_version
+
+    @property
     def num_views(self) -> int:
-        return int(self.labels.shape[1])
+        return self.samples.num_views
 
     def __len__(self) -> int:
-        return int(self.labels.shape[0])
+        return len(self.samples)
 
     @classmethod
     def load(
@@ -95,51 +131,18 @@ class SampleBank:
         dataset = storage.open_dataset(url)
         if covers_for is not None and not dataset.has_ambiguity:
             raise no_covers(url, dataset.info.schema_version, covers_for)
-        total = len(dataset)
-        if total == 0:
+        if len(dataset) == 0:
             raise DataError(f"{url}: holds no samples; generate a dataset with `datagen submit` first")
-        width = dataset.num_views
-        counts = np.zeros(total, dtype=np.int64)
-        pieces: list[npt.NDArray[np.int16] | None] = [None] * total
-        state = np.zeros((total, width), dtype=np.float32)
-        labels = np.zeros((total, width), dtype=np.float32)
-        bits = np.arange(width, dtype=np.uint64)
-        ambiguous = dataset.has_ambiguity
-        ambiguities: list[storage.LabelAmbiguity | None] = [None] * total
-        state_masks = np.zeros(total, dtype=np.uint64)
-        done = 0
-        for block in dataset.shard_blocks():
-            for i in block.tolist():
-                keys = dataset.keys(i, source)
-                pieces[i], counts[i] = keys, keys.shape[0]
-                view_state, label = dataset.masks(i)
-                state[i] = (np.uint64(view_state) >> bits) & np.uint64(1)
-                labels[i] = (np.uint64(label) >> bits) & np.uint64(1)
-                state_masks[i] = view_state
-                if ambiguous:
-                    ambiguities[i] = dataset.ambiguity(i)
-            done += block.size
-            if progress:
-                progress(done, total)
-        offsets = np.zeros(total + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        packed = np.concatenate([p for p in pieces if p is not None]) if offsets[-1] else np.zeros((0, 3), np.int16)
-        config = dataset.info.config
-        found = [a for a in ambiguities if a is not None]
-        return cls(
-            url=url,
-            # The dataset's own record: recomputing it would hash this machine's datagen files.
-            config_hash=dataset.info.config_hash,
-            keys=packed.astype(np.int16, copy=False),
-            offsets=offsets,
-            view_state=state,
-            labels=labels,
-            object_ids=tuple(dataset.index.column("object_id").to_pylist()),
-            voxel_size=float(config.voxel_size),
-            grid_offset=np.asarray(config.grid_offset, dtype=np.float64),
-            schema_version=dataset.info.schema_version,
-            covers=CoverBank.build(found, state_masks.tolist(), width) if ambiguous else None,
-        )
+        return cls.from_memory(load_memory(dataset, source, progress=progress))
+
+    @classmethod
+    def from_memory(cls, samples: MemoryDataset) -> SampleBank:
+        """A bank over samples `storage.memory.load_memory` read (its covers become a `CoverBank`)."""
+        packed = samples.covers
+        covers = None
+        if packed is not None:
+            covers = CoverBank.from_packed(packed, samples.view_state_masks, samples.num_views)
+        return cls(samples=samples, covers=covers)
 
     def batch(
         self,
@@ -151,23 +154,14 @@ class SampleBank:
     ) -> Batch:
         """Samples ``rows``, each resampled to ``num_points`` from stream (seed, epoch, row); with
         marginals and support when the dataset has covers, and the padded covers if asked for."""
-        chosen = np.zeros((len(rows), num_points, 3), dtype=np.int16)
-        for slot, row in enumerate(np.asarray(rows, dtype=np.int64).tolist()):
-            start, stop = int(self.offsets[row]), int(self.offsets[row + 1])
-            count = stop - start
-            if count == 0:
-                continue  # an empty cloud stays at the zero key, as storage's OSVPDataset does
-            rng = np.random.default_rng(np.random.SeedSequence([seed, epoch, row]))
-            picks = rng.choice(count, size=num_points, replace=count < num_points, shuffle=False)
-            chosen[slot] = self.keys[start + picks]
-        centres = ((chosen.astype(np.float64) + 0.5 - self.grid_offset) * self.voxel_size).astype(np.float32)
+        arrays = self.samples.batch(rows, num_points, seed, epoch)
         index = np.asarray(rows, dtype=np.int64)
         found = self.covers
         covers, valid = found.padded(index) if found is not None and with_covers else (None, None)
         return Batch(
-            points=torch.from_numpy(centres),
-            view_state=torch.from_numpy(self.view_state[index]),
-            labels=torch.from_numpy(self.labels[index]),
+            points=torch.from_numpy(arrays.points),
+            view_state=torch.from_numpy(arrays.view_state),
+            labels=torch.from_numpy(arrays.label),
             marginals=torch.from_numpy(found.marginals[index]) if found is not None else None,
             support=torch.from_numpy(found.support[index]) if found is not None else None,
             covers=torch.from_numpy(covers) if covers is not None else None,
@@ -197,22 +191,16 @@ def split_rows(
     objects (``objects``: no object on both sides, a test of generalisation to unseen shapes)."""
     if not 0.0 < val_fraction < 1.0:
         raise DataError(f"validation fraction {val_fraction} must lie strictly between 0 and 1")
-    total = len(bank)
     if how == "samples":
-        order = np.random.default_rng(np.random.SeedSequence([seed, total])).permutation(total)
-        cut = max(1, round(val_fraction * total))
-        if cut >= total:
-            raise DataError(f"{bank.url}: {total} samples are too few to split; generate more")
-        return np.sort(order[cut:]), np.sort(order[:cut])
+        try:
+            return split_by_sample(len(bank), val_fraction, seed)
+        except SplitError as exc:
+            raise DataError(f"{bank.url}: {exc}") from None
     if how != "objects":
         raise DataError(f"unknown split {how!r}; use 'samples' or 'objects'")
-    objects = sorted(set(bank.object_ids))
-    if len(objects) < 2:
+    if len(set(bank.object_ids)) < 2:
         raise DataError(f"{bank.url}: one object cannot be split by object; use --split samples")
-    order = np.random.default_rng(np.random.SeedSequence([seed, len(objects)])).permutation(len(objects))
-    held = {objects[i] for i in order[: max(1, round(val_fraction * len(objects)))]}
-    in_val = np.array([o in held for o in bank.object_ids], dtype=bool)
-    return np.flatnonzero(~in_val), np.flatnonzero(in_val)
+    return split_by_object(bank.object_ids, val_fraction, seed)
 
 
 def training_subset(

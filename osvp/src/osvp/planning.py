@@ -2,9 +2,11 @@
 
 The scorer takes what a dataset sample holds (the cloud's key centres in metres and the view state)
 and returns one probability per view. The cloud is resampled to the checkpoint's point count from a
-fixed stream, so a scene always gets the same answer. It is a ``DecodingScorer`` for ``datagen``:
+fixed stream, so a scene always gets the same answer. It is a `schemas.planning.DecodingScorer`:
 `CheckpointScorer.select_views` turns the probabilities into views with the checkpoint's default
 decoding (``osvp:FILE``) or a named one (``osvp+size:FILE``, ``osvp+threshold=0.3:FILE``).
+`load_scorer` is the `schemas.planning.ScorerFactory` osvp registers as entry point ``osvp`` of the
+group ``datagen.planners`` (pyproject.toml), through which ``datagen evaluate`` finds it.
 """
 
 from __future__ import annotations
@@ -17,11 +19,12 @@ import torch
 
 from osvp.checkpoint import Checkpoint, load_checkpoint
 from osvp.decoding import DECODINGS, parse_decoding, select_views
+from schemas.planning import DecodingScorer, ScorerFactory
 
 PLANNING_SEED = 0
 
 
-class CheckpointScorer:
+class CheckpointScorer(DecodingScorer):
     """One probability per candidate view for a refined cloud and a view state."""
 
     def __init__(self, checkpoint: Checkpoint, device: str = "cpu") -> None:
@@ -68,3 +71,7 @@ class CheckpointScorer:
 def load_scorer(path: str | Path, device: str = "cpu") -> CheckpointScorer:
     """The scorer of an `osvp train` checkpoint (`CheckpointError` names what is wrong with the file)."""
     return CheckpointScorer(load_checkpoint(path), device)
+
+
+_FACTORY: ScorerFactory = load_scorer
+"""The entry point, typed: mypy holds `load_scorer` to the seam (`str` in, a scorer out)."""

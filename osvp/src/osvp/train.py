@@ -14,6 +14,12 @@ minimum cover under the ``size`` decoding when the dataset has covers, else the 
 label bits at 0.5. A rule with nothing tuned on the rows it judges, and one that does not depend on
 how a target calibrates its probabilities: a ``marginal`` network's probabilities are fractions of
 covers, which 0.5 cuts almost entirely. The authors' selection reset every epoch; ours does not.
+
+A dataset larger than ``memory_limit_gb`` (or any, with ``stream``) is streamed (`osvp.stream`): each
+epoch reads the training rows shard by shard in ``workers`` DataLoader workers through a shuffle buffer
+of ``shuffle_buffer`` samples, in an order fixed by (seed, epoch, workers), each cloud resampled from
+the same stream (seed, epoch, row) as in memory; validation stays in memory, on at most ``val_cap`` of
+the validation rows (a seeded draw). A streamed run resumed from ``last.pt`` continues exactly as well.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ from osvp.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from osvp.covers import CoverBank
 from osvp.curves import draw_curves, write_metrics_csv
 from osvp.data import (
+    Batch,
     DataError,
     SampleBank,
     Split,
@@ -47,6 +54,16 @@ from osvp.decoding import PAPER_THRESHOLD, Decoding
 from osvp.loss import AMBIGUITY_TARGETS, DEFAULT_LAMBDA, TARGETS, target_loss
 from osvp.metrics import decoded_metrics, tune_threshold
 from osvp.network import PRESETS, OSVPNetwork, build_network
+from osvp.stream import (
+    MEMORY_LIMIT_GB,
+    VAL_CAP,
+    StreamedRows,
+    cap_rows,
+    choose_streaming,
+    index_bank,
+    open_dataset,
+    rows_bank,
+)
 
 LEARNING_RATES = {"paper": 1e-4, "small": 1e-3}
 """Default AdamW learning rate per preset (the authors' 1e-4 for the paper's network; the small
@@ -87,6 +104,16 @@ class TrainOptions:
     """Train on this seeded, nested fraction of the (remaining) training samples."""
     steps: int | None = None
     """Train for about this many gradient steps instead of `epochs` (see `for_samples`)."""
+    stream: bool | None = None
+    """Stream the training samples (True), hold them in memory (False), or choose by `memory_limit_gb`."""
+    memory_limit_gb: float = MEMORY_LIMIT_GB
+    """Stream when a `SampleBank` of the dataset would need more (`osvp.stream.memory_estimate`)."""
+    workers: int = 2
+    """DataLoader workers reading shards when streaming (the order depends on their number)."""
+    shuffle_buffer: int = 4096
+    """Samples the stream mixes at once."""
+    val_cap: int = VAL_CAP
+    """When streaming: validate on at most this many of the validation rows (a seeded draw; 0: all)."""
 
     def for_samples(self, train_samples: int) -> TrainOptions:
         """The options for a training set of ``train_samples``: with `steps`, as many epochs as give
@@ -114,6 +141,13 @@ class TrainOptions:
             raise DataError(f"lambda {self.lambda_} must be a positive number")
         if self.learning_rate is not None and not self.learning_rate > 0:
             raise DataError(f"learning rate {self.learning_rate} must be positive")
+        if not self.memory_limit_gb > 0:
+            raise DataError(f"memory limit {self.memory_limit_gb} GB must be positive")
+        for name, value, least in (("workers", self.workers, 0), ("shuffle buffer", self.shuffle_buffer, 1)):
+            if value < least:
+                raise DataError(f"{name} {value} must be >= {least}")
+        if self.val_cap < 0:
+            raise DataError(f"validation cap {self.val_cap} must be >= 0 (0: every validation sample)")
         if self.device.startswith("cuda") and not torch.cuda.is_available():
             raise DataError(f"device {self.device!r}: CUDA is not available here; use --device cpu")
 
@@ -124,8 +158,11 @@ class TrainOptions:
     def identity(self) -> dict[str, Any]:
         """What a resumed run must share with the run it continues."""
         data = asdict(self)
-        for free in ("out", "resume", "epochs", "device"):
+        for free in ("out", "resume", "epochs", "device", "memory_limit_gb"):
             data.pop(free)
+        if not self.stream:  # in memory: what runs before streaming existed recorded
+            for unused in ("stream", "workers", "shuffle_buffer", "val_cap"):
+                data.pop(unused)
         data["learning_rate"] = self.lr
         return data
 
@@ -205,24 +242,51 @@ def train(
     """Train (or resume) into ``options.out``: last.pt, best.pt, metrics.csv, curves.png."""
     options.check()
     needs = covers_needed(options.target)
-    bank = bank or SampleBank.load(options.data, options.source, covers_for=needs)
+    streamed: StreamedRows | None = None
+    streaming = options.stream if bank is None or options.stream else False
+    if streaming is None:
+        streaming = choose_streaming(options.data, None, options.memory_limit_gb, options.source)[0]
+    options = replace(options, stream=streaming)
+    if streaming:
+        dataset = open_dataset(options.data, needs)
+        bank = index_bank(dataset, options.source)
+        train_rows, val_rows = run_rows(bank, options)
+        # Validation in memory: its rows only (a bank of their own, position p = row val_rows[p]).
+        val_bank = rows_bank(dataset, cap_rows(val_rows, options.val_cap, options.seed), options.source)
+        val_rows = np.arange(len(val_bank), dtype=np.int64)
+        streamed = StreamedRows(
+            dataset,
+            train_rows,
+            PRESETS[options.preset].num_points,
+            options.batch_size,
+            options.seed,
+            options.source,
+            covers=options.target == "mincover",
+            workers=options.workers,
+            shuffle_buffer=options.shuffle_buffer,
+            pin_memory=options.device.startswith("cuda"),
+        )
+    else:
+        bank = val_bank = bank or SampleBank.load(options.data, options.source, covers_for=needs)
     if needs is not None:
-        require_covers(bank, needs)
-    train_rows, val_rows = run_rows(bank, options)
+        require_covers(val_bank, needs)
+    if streamed is None:
+        train_rows, val_rows = run_rows(bank, options)
     options = options.for_samples(len(train_rows))
     train_objects = len({bank.object_ids[i] for i in train_rows.tolist()})
-    val_covers = bank.covers.take(val_rows) if bank.covers is not None else None
+    val_covers = val_bank.covers.take(val_rows) if val_bank.covers is not None else None
     preset = PRESETS[options.preset]
     network, optimiser, scheduler, start, history, best = _start(options, bank, preset.num_points)
-    metric = selection_metric(bank)
+    metric = selection_metric(val_bank)
     best_score = max((row[metric] for row in history), default=-1.0)
     for epoch in range(start, options.epochs):
         started = time.perf_counter()
-        train_loss, loading = _train_epoch(network, optimiser, bank, train_rows, options, epoch, on_batch)
+        batches = streamed.epoch(epoch) if streamed is not None else _bank_batches(bank, train_rows, options, epoch)
+        train_loss, loading = _train_epoch(network, optimiser, batches, len(train_rows), options, epoch, on_batch)
         scheduler.step()
         spent = time.perf_counter() - started
-        val_loss, probabilities = predict_rows(network, bank, val_rows, preset.num_points, options)
-        figures, tuned = validation_figures(bank, val_rows, probabilities, val_covers)
+        val_loss, probabilities = predict_rows(network, val_bank, val_rows, preset.num_points, options)
+        figures, tuned = validation_figures(val_bank, val_rows, probabilities, val_covers)
         row = {
             "epoch": epoch + 1,
             "train_loss": train_loss,
@@ -297,26 +361,34 @@ def predict_rows(
     return (total / count if count else float("nan")), probabilities
 
 
+def _bank_batches(bank: SampleBank, rows: npt.NDArray[np.int64], options: TrainOptions, epoch: int) -> Iterator[Batch]:
+    """An epoch's batches from memory: the rows in a permutation drawn from (seed, epoch, 1)."""
+    order = np.random.default_rng(np.random.SeedSequence([options.seed, epoch, 1])).permutation(rows)
+    num_points = PRESETS[options.preset].num_points
+    for start in range(0, len(order), options.batch_size):
+        rows_now = order[start : start + options.batch_size]
+        yield bank.batch(rows_now, num_points, options.seed, epoch, with_covers=options.target == "mincover")
+
+
 def _train_epoch(
     network: OSVPNetwork,
     optimiser: torch.optim.Optimizer,
-    bank: SampleBank,
-    rows: npt.NDArray[np.int64],
+    batches: Iterator[Batch],
+    samples: int,
     options: TrainOptions,
     epoch: int,
     on_batch: Callable[[int, int, float], None] | None,
 ) -> tuple[float, float]:
-    """One pass over the training rows; (mean loss, seconds spent building batches)."""
+    """One pass over an epoch's batches (``samples`` in all); (mean loss, seconds spent waiting for them)."""
     network.train()
-    order = np.random.default_rng(np.random.SeedSequence([options.seed, epoch, 1])).permutation(rows)
-    num_points = PRESETS[options.preset].num_points
     total, loading, seen = 0.0, 0.0, 0
     with seeded_torch(stream_seed(options.seed, epoch, 2), options.device):
-        for start in range(0, len(order), options.batch_size):
+        while True:
             clock = time.perf_counter()
-            rows_now = order[start : start + options.batch_size]
-            batch = bank.batch(rows_now, num_points, options.seed, epoch, with_covers=options.target == "mincover")
+            batch = next(batches, None)
             loading += time.perf_counter() - clock
+            if batch is None:
+                break
             logits = network(batch.points.to(options.device), batch.view_state.to(options.device))
             loss = target_loss(options.target, logits, batch, options.lambda_)
             optimiser.zero_grad(set_to_none=True)
@@ -326,7 +398,7 @@ def _train_epoch(
             total += float(loss.detach()) * size
             seen += size
             if on_batch:
-                on_batch(seen, len(order), total / seen)
+                on_batch(seen, samples, total / seen)
     return total / max(seen, 1), loading
 
 
@@ -352,7 +424,8 @@ def _start(
         if stored.get("options") != options.identity() or stored.get("config_hash") != bank.config_hash:
             raise CheckpointError(
                 f"{last}: was trained with other options or data; resume with the same --data, --preset, --lambda, "
-                "--target, --batch-size, --seed, --split, --max-objects and --sample-fraction, or start a new --out"
+                "--target, --batch-size, --seed, --split, --max-objects and --sample-fraction, streaming as it did "
+                "(with the same --workers, --shuffle-buffer and --val-cap), or start a new --out"
             )
         network = checkpoint.network(options.device).train()
         optimiser, scheduler = _optimiser(network, options)

@@ -25,14 +25,16 @@ from torch import Tensor
 from datagen.pipeline.imaging import Observation
 from datagen.pipeline.keys import key_centres, points_to_packed, unpack_keys
 from datagen.pipeline.refine.base import band_keys
-from datagen.pipeline.refine.freespace import sensor_empty
+from datagen.pipeline.refine.freespace import DepthBuffers, sensor_empty
 from datagen.pipeline.refine.poco.network import PocoModel
+from datagen.pipeline.refine.poco.spatial import KnnBackend
 from schemas.config import GenerationConfig
 
 TRAINING_SCALE = 0.05
 """Metres per network unit: inputs are centred on their mean and divided by this."""
 DECODE_CHUNK = 8192
-"""Queries decoded at once by `predict_probs` (bounds memory on large bands)."""
+"""Queries decoded at once by `predict_probs` (bounds memory on large bands). The fast path keeps this
+chunking where it decides bits (`PocoModel.decode_inference`) and decodes cache-sized sub-chunks."""
 
 
 def observation_inputs(
@@ -71,12 +73,15 @@ def normalise(points: npt.NDArray[np.float64], centre: npt.NDArray[np.float64]) 
 
 
 def query_keys(
-    observation: Observation, config: GenerationConfig
+    observation: Observation, config: GenerationConfig, buffers: DepthBuffers | None = None
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-    """(unknown, queries, empty): band minus keys(O); those not sensor-empty; the sensor-empty mask."""
+    """(unknown, queries, empty): band minus keys(O); those not sensor-empty; the sensor-empty mask.
+
+    ``buffers`` keeps views' depth buffers between calls (`freespace.DepthBuffers`; same result).
+    """
     band = band_keys(observation.keys, config.band_keys_sq)
     unknown = np.setdiff1d(band, observation.keys, assume_unique=True)
-    empty = sensor_empty(unknown, observation, config.camera, config.voxel_size, config.grid_offset)
+    empty = sensor_empty(unknown, observation, config.camera, config.voxel_size, config.grid_offset, buffers)
     return unknown, unknown[~empty], empty
 
 
@@ -103,9 +108,13 @@ def _on_device(
     queries: Tensor,
     generator: torch.Generator,
     device: torch.device | str,
+    knn_backend: KnnBackend = "auto",
 ) -> tuple[Tensor, Tensor, dict[str, Tensor], Tensor]:
-    """(points, features, tables, queries) on ``device``; the neighbour tables are built on the CPU."""
-    tables = model.tables(points.cpu(), generator, queries=queries.cpu())
+    """(points, features, tables, queries) on ``device``; the neighbour tables are built on the CPU,
+    the encoder's by scipy's cKDTree, the decoder's (``proj_indices``) by ``knn_backend`` ("auto" is
+    cKDTree there too; "pykdtree" for ``poco_version`` 2)."""
+    tables = model.tables(points.cpu(), generator)
+    tables["proj_indices"] = model.query_knn(points.cpu(), queries.cpu(), backend=knn_backend)
     tables = {k: v.to(device) for k, v in tables.items()}
     points, directions, queries = points.to(device), directions.to(device), queries.to(device)
     features = model.features(points, directions if model.preset.uses_directions else None)
@@ -119,9 +128,10 @@ def forward_logits(
     queries: Tensor,
     generator: torch.Generator,
     device: torch.device | str,
+    knn_backend: KnnBackend = "auto",
 ) -> Tensor:
     """Logits (B, 2, M) of the queries in one differentiable forward (training, test-time fine-tuning)."""
-    points, features, tables, queries = _on_device(model, points, directions, queries, generator, device)
+    points, features, tables, queries = _on_device(model, points, directions, queries, generator, device, knn_backend)
     logits: Tensor = model(points, features, tables, queries, tables["proj_indices"])
     return logits
 
@@ -134,15 +144,27 @@ def predict_probs(
     rng: np.random.Generator,
     generator: torch.Generator,
     device: torch.device | str,
+    *,
+    fast: bool = True,
+    knn_backend: KnnBackend = "auto",
 ) -> npt.NDArray[np.float32]:
-    """p(inside) of each query (metres) given the observed key centres (metres), one observation."""
+    """p(inside) of each query (metres) given the observed key centres (metres), one observation.
+
+    ``fast`` (the default) runs under ``torch.inference_mode`` with `PocoModel.decode_inference`;
+    ``fast=False`` is the original execution (``no_grad``, `PocoModel.decode` in chunks of
+    `DECODE_CHUNK`). Both give bit-identical probabilities (tests/pipeline/test_refine_speed.py).
+    ``knn_backend`` builds the neighbour tables (`_on_device`).
+    """
     if queries.shape[0] == 0:
         return np.zeros(0, dtype=np.float32)
     pick = choose_inputs(inputs.shape[0], model.preset.num_input_points, rng)
     points, dirs, q = network_tensors(inputs[pick], directions[pick], queries)
-    with torch.no_grad():
-        points, features, tables, q = _on_device(model, points, dirs, q, generator, device)
+    with torch.inference_mode() if fast else torch.no_grad():
+        points, features, tables, q = _on_device(model, points, dirs, q, generator, device, knn_backend)
         latents = model.encode(points, features, tables)
-        logits = model.decode(latents, points, q, tables["proj_indices"], chunk_size=DECODE_CHUNK)
+        if fast:
+            logits = model.decode_inference(latents, points, q, tables["proj_indices"], DECODE_CHUNK)
+        else:
+            logits = model.decode(latents, points, q, tables["proj_indices"], chunk_size=DECODE_CHUNK)
         prob = torch.softmax(logits.float(), dim=1)[0, 1]
     return prob.cpu().numpy().astype(np.float32)

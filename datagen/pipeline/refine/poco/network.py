@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -21,6 +22,32 @@ from datagen.pipeline.refine.poco.spatial import GeneratorLike, KnnBackend, leve
 
 _DECODER_BUDGET = 1 << 21
 """Elements of one (queries x K x width) decoder activation per chunk: bounds memory, keeps it in cache."""
+_INFERENCE_BUDGET = 1 << 19
+"""The same for `PocoModel.decode_inference`: 2 MiB of float32 per activation, so a chunk's activations
+stay in a core's L2 cache (measured on the 2-core CPU: 8192-query chunks of the small preset, 16 MiB
+each, ran 2.4x slower than 1024-query ones, with bit-identical logits)."""
+FAST_OPS = True
+"""Use the bit-identical faster operations of `neighbour_distances`, `neighbour_max` and
+`FKAConv._norm_relu`; False runs the original ones (torch's norm, max with indices, instance_norm),
+for benchmarks and the tests that compare the two (`PocoRefiner(fast=False)` sets it while it runs)."""
+
+
+def neighbour_distances(local: Tensor) -> Tensor:
+    """Euclidean lengths of local offsets (B, 3, M, K) over the coordinate axis -> (B, M, K).
+
+    Bit-identical to ``local.norm(dim=1)``, which on CPU runs a scalar loop for this layout (4 ms for
+    one 3000 x 16 neighbourhood table, a sixth of a level-0 FKAConv). That kernel rounds
+    ``(x*x + y*y) + z*z`` in float32, in this order, without fused multiply-adds, then takes the
+    correctly rounded root (``std::sqrt``); here the sum is the same float32 vector ops and the root is
+    numpy's, the correctly rounded hardware one. torch's vectorised ``sqrt`` is not correctly rounded
+    (it differs in ~0.6 % of float32 values), hence numpy. Other dtypes, devices or shapes use ``norm``.
+    """
+    if not FAST_OPS or local.device.type != "cpu" or local.dtype != torch.float32 or local.shape[1] != 3:
+        return local.norm(dim=1)
+    square = local * local
+    total = (square[:, 0] + square[:, 1]).add_(square[:, 2])
+    np.sqrt(total.numpy(), out=total.numpy())
+    return total
 
 
 def gather_channels_last(values: Tensor, index: Tensor) -> Tensor:
@@ -38,9 +65,18 @@ def gather_neighbours(values: Tensor, index: Tensor) -> Tensor:
     return torch.gather(values, 2, flat).view(batch, channels, *index.shape[1:])
 
 
+def neighbour_max(values: Tensor, keepdim: bool = False) -> Tensor:
+    """Max of (B, C, M, K) over K. Without autograd ``amax`` (2x faster: no argmax); with it
+    ``max(...).values``, whose gradient goes to one of tied maxima where amax's would be split
+    among them (ReLU zeros tie often). The values are the same either way."""
+    if not FAST_OPS or (torch.is_grad_enabled() and values.requires_grad):
+        return values.max(dim=3, keepdim=keepdim).values
+    return values.amax(dim=3, keepdim=keepdim)
+
+
 def max_pool(values: Tensor, index: Tensor) -> Tensor:
     """Max of (B, C, N) over each neighbourhood of index (B, M, K) -> (B, C, M)."""
-    return gather_neighbours(values, index).max(dim=3).values
+    return neighbour_max(gather_neighbours(values, index))
 
 
 def upsample_nearest(values: Tensor, index: Tensor) -> Tensor:
@@ -77,7 +113,7 @@ class FKAConv(nn.Module):
         """x (B, Cin, N), pos (B, 3, N), support (B, 3, M), index (B, M, K) into pos -> (B, Cout, M)."""
         batch, _, m, k = (*support.shape, index.shape[2])
         local = gather_neighbours(pos, index) - support.unsqueeze(3)  # (B, 3, M, K)
-        distances = local.detach().norm(dim=1)  # (B, M, K)
+        distances = neighbour_distances(local.detach())  # (B, M, K)
         if self.training:
             # Running mean of the neighbourhood radius, updated before use (as upstream).
             mean_radius = distances.max(dim=2).values.mean()
@@ -93,11 +129,11 @@ class FKAConv(nn.Module):
         # InstanceNorm statistics span every neighbourhood of the cloud (per sample and channel).
         use_norm = k > 1
         mat = self.fc1(local)
-        mat = F.relu(self.bn1(mat) if use_norm else mat)
-        pooled = (mat * weight).max(dim=3, keepdim=True).values.expand(-1, -1, -1, k)
+        mat = self._norm_relu(self.bn1, mat) if use_norm else F.relu(mat)
+        pooled = neighbour_max(mat * weight, keepdim=True).expand(-1, -1, -1, k)
         mat = self.fc2(torch.cat([mat, pooled], dim=1))
-        mat = F.relu(self.bn2(mat) if use_norm else mat)
-        pooled = (mat * weight).max(dim=3, keepdim=True).values.expand(-1, -1, -1, k)
+        mat = self._norm_relu(self.bn2, mat) if use_norm else F.relu(mat)
+        pooled = neighbour_max(mat * weight, keepdim=True).expand(-1, -1, -1, k)
         mat = F.relu(self.fc3(torch.cat([mat, pooled], dim=1))) * weight  # (B, S, M, K)
 
         # Project neighbour features on the slots: (B, M, Cin, K) @ (B, M, K, S) -> (B, M, Cin, S).
@@ -105,6 +141,24 @@ class FKAConv(nn.Module):
         slots = torch.matmul(feats, mat.permute(0, 2, 3, 1))
         out = F.linear(slots.reshape(batch, m, -1), self.cv.weight.reshape(self.out_channels, -1))
         return out.transpose(1, 2)
+
+    @staticmethod
+    def _norm_relu(norm: nn.InstanceNorm2d, mat: Tensor) -> Tensor:
+        """ReLU(norm(mat)). Without autograd, for one sample on CPU, it makes the very ``batch_norm``
+        call that ``instance_norm`` makes (whose reshape to (1, B * C, M, K) is then the identity),
+        without its wrapping (0.9 ms of 2.3 on a 3000 x 16 table), and the ReLU in place: the same values."""
+        if (
+            not FAST_OPS
+            or torch.is_grad_enabled()
+            or mat.shape[0] != 1
+            or mat.device.type != "cpu"
+            or norm.track_running_stats
+            or not mat.is_contiguous()
+        ):
+            return F.relu(norm(mat))
+        momentum = norm.momentum if norm.momentum is not None else 0.0
+        out = F.batch_norm(mat, None, None, norm.weight, norm.bias, True, momentum, norm.eps)
+        return out.relu_()
 
 
 class ResidualBlock(nn.Module):
@@ -287,6 +341,31 @@ class InterpAttentionKHeadsNet(nn.Module):
         values = F.linear(pooled, self.fc_value.weight.flatten(1), self.fc_value.bias)
         return F.linear(values, self.fc8.weight.flatten(1), self.fc8.bias).transpose(1, 2)
 
+    def query_terms(self, queries: Tensor) -> Tensor:
+        """The per-query part of fc1 in the channels-first layout, W_p q + b: (B, L, M)."""
+        w_pos = self.fc1.weight.flatten(1)[:, self.latent_size :]
+        bias = self.fc1.bias
+        assert bias is not None  # fc1 is built with a bias
+        return torch.matmul(w_pos, queries) + bias[:, None]
+
+    def forward_inference(self, point_terms: Tensor, query_terms: Tensor, index: Tensor) -> Tensor:
+        """The channels-first `forward_fast` after its `query_terms`, for inference: the same operations
+        on the same values in the same order, with less memory traffic (neighbour rows gathered by one
+        ``index_select``, fresh intermediates updated in place; no autograd). Logits (B, 2, M)."""
+        batch, channels, _ = point_terms.shape
+        if batch == 1:
+            rows = point_terms[0].index_select(1, index.reshape(-1)).view(1, channels, *index.shape[1:])
+        else:
+            rows = gather_neighbours(point_terms, index)
+        h = rows.add_(query_terms.unsqueeze(3)).relu_()  # (B, L, M, K)
+        h = F.conv2d(h, self.fc2.weight, self.fc2.bias).relu_()
+        h = F.conv2d(h, self.fc3.weight, self.fc3.bias).relu_()
+        attention = torch.softmax(F.conv2d(h, self.fc_query.weight, self.fc_query.bias), dim=3).mean(dim=1)
+        pooled = h.mul_(attention.unsqueeze(1)).sum(dim=3)  # (B, L, M)
+        values = F.conv1d(pooled, self.fc_value.weight.flatten(2), self.fc_value.bias)
+        out: Tensor = F.conv1d(values, self.fc8.weight, self.fc8.bias)
+        return out
+
 
 def input_features(points: Tensor, input_channels: int = 3, directions: Tensor | None = None) -> Tensor:
     """The encoder's per-point input (B, C, N): constant ones, plus unit camera directions for C = 6.
@@ -380,6 +459,45 @@ class PocoModel(nn.Module):
                 parts.append(decoder.forward_fast(point_terms, q, idx))
             else:
                 parts.append(decoder.forward_reference(latents, points, q, idx))
+        if not parts:
+            return latents.new_zeros((batch, 2, 0))
+        return parts[0] if len(parts) == 1 else torch.cat(parts, dim=2)
+
+    def decode_inference(
+        self, latents: Tensor, points: Tensor, queries: Tensor, knn: Tensor, reference_chunk: int
+    ) -> Tensor:
+        """Logits (B, 2, M) bit-identical to ``decode(..., chunk_size=reference_chunk)`` (fast layout),
+        faster, without gradients.
+
+        Some kernels round differently on tiny inputs: the (L x 3) @ (3 x m) matmul of the per-query
+        fc1 term for m <= 8 and the value convolutions for m = 1 (MKL and oneDNN small-size paths);
+        the 1x1 convolutions, softmax and reductions give the same bits at every size. So the query
+        terms are computed in `decode`'s chunks of ``reference_chunk``, and each such chunk is decoded
+        in sub-chunks of `_INFERENCE_BUDGET` elements per activation (1024 queries for the small
+        preset: 8192-query activations, 16 MiB, ran 2.4x slower than ones that stay in a core's
+        cache), never leaving a sub-chunk of fewer than 64 queries unless the chunk itself is that
+        small. The channels-last layout (wide decoders) and accelerators (whose kernels choose
+        algorithms by size in other ways; not verified) run `decode` itself.
+        """
+        decoder = self.projection
+        if decoder.channels_last or not self.fast_decoder or queries.device.type != "cpu":
+            with torch.no_grad():
+                return self.decode(latents, points, queries, knn, chunk_size=reference_chunk)
+        batch, _, m = queries.shape
+        per_query = batch * knn.shape[2] * max(decoder.latent_size, decoder.heads)
+        step = max(64, _INFERENCE_BUDGET // max(1, per_query))
+        parts = []
+        with torch.no_grad():
+            point_terms = decoder.point_terms(latents, points)
+            for start in range(0, m, reference_chunk):
+                stop = min(m, start + reference_chunk)
+                query_terms = decoder.query_terms(queries[:, :, start:stop])
+                cuts = list(range(0, stop - start, step))
+                if len(cuts) > 1 and stop - start - cuts[-1] < 64:
+                    cuts.pop()  # the remainder joins the previous sub-chunk
+                for a, b in zip(cuts, [*cuts[1:], stop - start], strict=True):
+                    index = knn[:, start + a : start + b]
+                    parts.append(decoder.forward_inference(point_terms, query_terms[:, :, a:b], index))
         if not parts:
             return latents.new_zeros((batch, 2, 0))
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=2)

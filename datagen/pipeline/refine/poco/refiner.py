@@ -1,4 +1,4 @@
-"""The ``poco`` refiner (PIPELINE.md section 4): a POCO network classifies the unknown band keys.
+"""The ``poco`` refiner (docs/pipeline.md section 4): a POCO network classifies the unknown band keys.
 
 For each observation O: the band keys of O minus keys(O) minus the keys some view saw empty are
 queried (`inputs.query_keys`, exactly the training queries); R(O) = the queries whose p(inside)
@@ -9,8 +9,25 @@ loads training code.
 
 Randomness (the input subset/repeats when |keys(O)| differs from the preset's point count, the
 quantized sampling of the encoder, and the optional fine-tuning draws) comes from the case's
-REFINER_NOISE stream (PIPELINE.md section 9), so a call is a function of (O, seed, object, rotation,
+REFINER_NOISE stream (docs/pipeline.md section 9), so a call is a function of (O, seed, object, rotation,
 mask, weights, config). On CPU it is deterministic for a fixed torch thread count.
+
+Speed (issue 24): the refiner keeps the depth buffers of the views it has seen (`freespace.DepthBuffers`:
+a task's cases reuse its single views) and runs the network through its inference path
+(`inputs.predict_probs` with ``fast=True``: cache-sized decoder sub-chunks, in-place updates, and in
+the encoder a vectorised neighbour norm, amax, batch_norm for one sample's instance norm: see
+`network.FAST_OPS`). Every one of these gives bit-identical probabilities, so the refiner's outputs,
+and the dataset's identity, are those of the original execution, which ``fast=False`` still runs
+(benchmarks/refine_speed.py, tests/pipeline/test_refine_speed.py).
+
+Versions (``GenerationConfig.poco_version``, part of the config hash): 1 is the computation above with
+scipy's cKDTree building every neighbour table (all datasets made before versions existed); 2 builds
+the decoder's table (each query's K nearest inputs, the largest search) with pykdtree instead
+(`KNN_BACKENDS`): ~13 % less refinement CPU on the 2-core machine. Both searches are exact, but ~80 %
+of queries have input points at exactly equal distances (key centres on a grid) and each search
+breaks such ties its own way, 8-15 % of queries at the K-th neighbour; version 2 flips ~0.8 % of the
+keys of R(O) (measured on the built-in mug). The encoder's tables stay cKDTree's: their ties move
+every latent, and pykdtree there would flip ~7 % for another 2 % of CPU.
 
 Optional test-time fine-tuning (``finetune_steps`` > 0; AIR used 10, the default here is 0): a copy
 of the network takes that many Adam steps (lr 1e-3) on the observation itself, with the observed key
@@ -21,17 +38,22 @@ from __future__ import annotations
 
 import copy
 import hashlib
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import ExitStack, contextmanager
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 import torch
+from threadpoolctl import threadpool_limits
 
+from datagen.errors import ConfigError
 from datagen.pipeline.keys import key_centres, unpack_keys
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import RefineRequest
+from datagen.pipeline.refine.freespace import DepthBuffers
+from datagen.pipeline.refine.poco import network
 from datagen.pipeline.refine.poco.inputs import (
     choose_inputs,
     forward_logits,
@@ -41,14 +63,29 @@ from datagen.pipeline.refine.poco.inputs import (
     query_keys,
 )
 from datagen.pipeline.refine.poco.network import PocoModel
+from datagen.pipeline.refine.poco.spatial import KnnBackend, pykdtree_available
 from schemas.config import GenerationConfig
 
 BUILTIN_WEIGHTS = Path(str(resources.files("datagen"))) / "data" / "poco_small.pt"
 FINETUNE_QUERIES = 4096
+KNN_BACKENDS: dict[int, KnnBackend] = {1: "auto", 2: "pykdtree"}
+"""The decoder table's neighbour search of each ``poco_version`` ("auto" is scipy's cKDTree: tables
+are built on the CPU)."""
 
 
 def weights_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+@contextmanager
+def _network_ops(fast: bool) -> Iterator[None]:
+    """`network.FAST_OPS` set to ``fast`` while inside (the original operations when False)."""
+    previous = network.FAST_OPS
+    network.FAST_OPS = fast
+    try:
+        yield
+    finally:
+        network.FAST_OPS = previous
 
 
 class PocoRefiner:
@@ -62,6 +99,8 @@ class PocoRefiner:
         threshold: float,
         finetune_steps: int = 0,
         device: str | torch.device = "cpu",
+        *,
+        fast: bool = True,
     ) -> None:
         self.config = config
         self.model = model.eval()
@@ -69,17 +108,52 @@ class PocoRefiner:
         self.threshold = float(threshold)
         self.finetune_steps = int(finetune_steps)
         self.device = torch.device(device)
+        self.knn_backend = KNN_BACKENDS[config.poco_version]
+        if self.knn_backend == "pykdtree" and not pykdtree_available():
+            raise ConfigError(
+                f"poco_version = {config.poco_version} builds its neighbour tables with pykdtree, which is not "
+                "installed: pip install 'pykdtree>=1.4,<1.5' (or use poco_version = 1)"
+            )
+        self.fast = fast
+        """False: the original execution (no buffer reuse, `PocoModel.decode` in 8192-query chunks,
+        the original operations: `network.FAST_OPS`); the same outputs, for benchmarks and the tests
+        that check so."""
+        self.depth_buffers: DepthBuffers | None = DepthBuffers() if fast else None
+        self._inside = False
+
+    @contextmanager
+    def execution(self) -> Iterator[None]:
+        """`network.FAST_OPS` as ``fast`` asks and, for pykdtree, OpenMP bounded to torch's thread count
+        (one per worker), for the calls inside; `refine` and `probabilities` enter it themselves, and
+        a caller of many `probabilities` may enter it once around them (threadpoolctl costs ~1 ms)."""
+        if self._inside:
+            yield
+            return
+        with ExitStack() as stack:
+            stack.enter_context(_network_ops(self.fast))
+            if self.knn_backend == "pykdtree":
+                stack.enter_context(threadpool_limits(limits=torch.get_num_threads(), user_api="openmp"))
+            self._inside = True
+            try:
+                yield
+            finally:
+                self._inside = False
 
     def refine(self, requests: Sequence[RefineRequest]) -> list[npt.NDArray[np.int64]]:
-        return [self.refine_one(request) for request in requests]
+        with self.execution():
+            return [self.refine_one(request) for request in requests]
 
     def probabilities(self, request: RefineRequest) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
         """The queried keys of the request and p(inside) of each."""
+        with self.execution():
+            return self._probabilities(request)
+
+    def _probabilities(self, request: RefineRequest) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
         config = self.config
         observation = request.observation
         if observation.keys.size == 0:
             return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float32)
-        _, queries, _ = query_keys(observation, config)
+        _, queries, _ = query_keys(observation, config, self.depth_buffers)
         if queries.size == 0:
             return queries, np.empty(0, dtype=np.float32)
         rng = stream(request.seed, request.object_id, request.rotation, Purpose.REFINER_NOISE, request.mask)
@@ -89,7 +163,17 @@ class PocoRefiner:
         if self.finetune_steps > 0:
             model = self._finetuned(request, inputs, directions, rng, generator)
         centres = key_centres(unpack_keys(queries), config.voxel_size, config.grid_offset)
-        prob = predict_probs(model, inputs, directions, centres, rng, generator, self.device)
+        prob = predict_probs(
+            model,
+            inputs,
+            directions,
+            centres,
+            rng,
+            generator,
+            self.device,
+            fast=self.fast,
+            knn_backend=self.knn_backend,
+        )
         return queries, prob
 
     def refine_one(self, request: RefineRequest) -> npt.NDArray[np.int64]:
@@ -106,7 +190,7 @@ class PocoRefiner:
     ) -> PocoModel:
         config = self.config
         observation = request.observation
-        unknown, _, empty = query_keys(observation, config)
+        unknown, _, empty = query_keys(observation, config, self.depth_buffers)
         negatives = key_centres(unpack_keys(unknown[empty]), config.voxel_size, config.grid_offset)
         model = copy.deepcopy(self.model).train()
         optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
@@ -119,7 +203,7 @@ class PocoRefiner:
             q = np.concatenate([pos, neg])
             labels = torch.from_numpy(np.concatenate([np.ones(len(pos)), np.zeros(len(neg))]).astype(np.int64))[None]
             points, dirs, qt = network_tensors(inputs[pick], directions[pick], q)
-            logits = forward_logits(model, points, dirs, qt, generator, self.device)
+            logits = forward_logits(model, points, dirs, qt, generator, self.device, self.knn_backend)
             loss = torch.nn.functional.cross_entropy(logits, labels.to(self.device))
             optimizer.zero_grad()
             loss.backward()

@@ -1,0 +1,180 @@
+"""Training from a stream: when a dataset does not fit in memory, each epoch reads the training
+samples shard by shard (`storage.stream.ShardStream`, in DataLoader workers) instead of from a
+`osvp.data.SampleBank`.
+
+`memory_estimate` is what a `SampleBank` of the dataset would hold, from the index alone (its point
+counts): 6 bytes a point, plus the per-sample rows; `choose_streaming` streams when that exceeds the
+limit (``osvp train --memory-limit``, 8 GB by default) or when asked (``--stream``).
+
+In streaming mode the validation rows stay in memory: `index_bank` is a `SampleBank` of every sample's
+index facts (object, view state, label; no clouds), on which the split and the training subset are
+drawn exactly as in memory; `rows_bank` then reads the clouds and covers of the validation rows only
+(`storage.memory.load_memory`), at most ``val_cap`` of them (a seeded draw, `cap_rows`). Every sample
+resamples from its dataset row's stream (seed, epoch, row), so a streamed batch holds the clouds
+`SampleBank.batch` gives, and the validation clouds are the in-memory ones.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+import torch
+
+import storage
+from osvp.data import Batch, DataError, SampleBank, no_covers
+from storage.memory import MemoryDataset, load_memory
+from storage.samples import mask_bits
+from storage.stream import ShardStream
+
+GB = 1e9
+MEMORY_LIMIT_GB = 8.0
+VAL_CAP = 10_000
+CAP_STREAM = 0x5A1CA
+"""Tag of the validation cap's stream (seed, tag)."""
+POINT_BYTES = 6
+"""A stored point: three int16 key coordinates."""
+
+
+def memory_estimate(dataset: storage.Dataset, source: Literal["points", "observed"] = "points") -> int:
+    """Bytes a `SampleBank` of the whole dataset holds: every key, its offsets, view state and label
+    rows, and with covers their support, marginals and listed covers (from the index's counts; the
+    listing is capped by the config's ``label_cover_cap``). Loading it briefly needs up to twice the keys."""
+    column = "num_points" if source == "points" else "num_observed"
+    points = int(dataset.index.column(column).to_numpy().astype(np.int64).sum())
+    samples, width = len(dataset), dataset.num_views
+    total = points * POINT_BYTES + samples * (8 + 2 * 4 * width)
+    if dataset.has_ambiguity:
+        cap = int(dataset.info.config.label_cover_cap)
+        listed = np.minimum(dataset.index.column("min_covers").to_numpy().astype(np.int64), cap)
+        total += samples * (2 * 4 * width + 8 + 8 + 1) + int(listed.sum()) * 8
+    return total
+
+
+def choose_streaming(
+    url: str, stream: bool | None, memory_limit_gb: float, source: Literal["points", "observed"] = "points"
+) -> tuple[bool, str]:
+    """(stream?, the line that says why) for ``osvp train``: ``stream`` True or False decides; None
+    streams when `memory_estimate` exceeds the limit."""
+    if stream is not None:
+        return stream, "streaming the training samples (--stream)" if stream else ""
+    needed = memory_estimate(storage.open_dataset(url), source)
+    if needed > memory_limit_gb * GB:
+        return True, (
+            f"streaming the training samples: in memory they need about {needed / GB:.1f} GB, over --memory-limit "
+            f"{memory_limit_gb:g} GB (validation stays in memory)"
+        )
+    return False, ""
+
+
+def open_dataset(url: str, covers_for: str | None) -> storage.Dataset:
+    """The dataset (index only); refused before any read when ``covers_for`` needs covers it lacks."""
+    dataset = storage.open_dataset(url)
+    if covers_for is not None and not dataset.has_ambiguity:
+        raise no_covers(url, dataset.info.schema_version, covers_for)
+    if len(dataset) == 0:
+        raise DataError(f"{url}: holds no samples; generate a dataset with `datagen submit` first")
+    return dataset
+
+
+def index_bank(dataset: storage.Dataset, source: Literal["points", "observed"] = "points") -> SampleBank:
+    """A `SampleBank` of every sample holding no cloud and no covers: the index's facts (object,
+    view state, label), enough to draw the split and the training subset as in memory."""
+    total, width = len(dataset), dataset.num_views
+    index = dataset.index
+    states = index.column("view_state").to_numpy().astype(np.uint64)
+    labels = index.column("label").to_numpy().astype(np.uint64)
+    config = dataset.info.config
+    facts = MemoryDataset(
+        url=dataset.url,
+        config_hash=dataset.info.config_hash,
+        schema_version=dataset.info.schema_version,
+        num_views=width,
+        voxel_size=float(config.voxel_size),
+        grid_offset=np.asarray(config.grid_offset, dtype=np.float64),
+        source=source,
+        rows=np.arange(total, dtype=np.int64),
+        keys=np.zeros((0, 3), dtype=np.int16),
+        offsets=np.zeros(total + 1, dtype=np.int64),
+        view_state_masks=states,
+        label_masks=labels,
+        view_state=mask_bits(states, width).astype(np.float32),
+        labels=mask_bits(labels, width).astype(np.float32),
+        object_ids=tuple(index.column("object_id").to_pylist()),
+    )
+    return SampleBank(samples=facts)
+
+
+def cap_rows(rows: npt.NDArray[np.int64], cap: int, seed: int) -> npt.NDArray[np.int64]:
+    """At most ``cap`` of ``rows`` (0: all), a seeded draw, sorted."""
+    if cap <= 0 or rows.size <= cap:
+        return rows
+    chosen = np.random.default_rng(np.random.SeedSequence([seed, CAP_STREAM])).choice(rows, cap, replace=False)
+    return np.sort(chosen)
+
+
+def rows_bank(
+    dataset: storage.Dataset, rows: npt.NDArray[np.int64], source: Literal["points", "observed"] = "points"
+) -> SampleBank:
+    """The samples ``rows`` in memory, with their minimum covers (position p is dataset row
+    ``rows[p]``, and resamples from that row's stream, as in a whole load)."""
+    return SampleBank.from_memory(load_memory(dataset, source, rows=rows))
+
+
+class StreamedRows:
+    """The training rows as a stream of `osvp.data.Batch`, one DataLoader per epoch."""
+
+    def __init__(
+        self,
+        dataset: storage.Dataset,
+        rows: npt.NDArray[np.int64],
+        num_points: int,
+        batch_size: int,
+        seed: int,
+        source: Literal["points", "observed"] = "points",
+        covers: bool = False,
+        workers: int = 2,
+        shuffle_buffer: int = 4096,
+        pin_memory: bool = False,
+    ) -> None:
+        self.stream = ShardStream(
+            dataset,
+            rows=rows,
+            num_points=num_points,
+            batch_size=batch_size,
+            source=source,
+            seed=seed,
+            shuffle_buffer=shuffle_buffer,
+            covers=covers,
+            num_workers=workers,
+            rank=0,
+            world_size=1,
+        )
+        self.workers = workers
+        self.pin_memory = pin_memory
+
+    def __len__(self) -> int:
+        """Samples of an epoch."""
+        return self.stream.num_samples
+
+    def epoch(self, epoch: int) -> Iterator[Batch]:
+        """The batches of ``epoch``; the DataLoader draws its worker seeds from its own generator,
+        never from torch's global RNG."""
+        self.stream.set_epoch(epoch)
+        loader = self.stream.loader(
+            num_workers=self.workers,
+            pin_memory=self.pin_memory,
+            generator=torch.Generator().manual_seed(epoch),
+        )
+        for found in loader:
+            yield Batch(
+                points=found["points"],
+                view_state=found["view_state"],
+                labels=found["label"],
+                marginals=found.get("marginals"),
+                support=found.get("support"),
+                covers=found.get("covers"),
+                cover_mask=found.get("cover_mask"),
+            )

@@ -1,0 +1,313 @@
+"""A dataset's samples in memory: read once, shard by shard, then batched without a reader.
+
+A training epoch over a few thousand samples must not wait on Zarr reads, so `load_memory` reads
+the integer keys of the chosen samples once (whole shard arrays, the reader's fast order) and keeps
+them packed in one int16 array with offsets, with each sample's view state and label (as masks and
+as 0/1 rows), object id, the dataset's voxel size, grid offset, schema version and stored config
+hash, and, for a version-2 dataset, its minimum covers and U's set-cover rows packed as uint64 masks
+with offsets. `MemoryDataset.batch` then builds fixed-size point clouds by a numpy gather.
+
+Every conversion follows the sample contract of `storage.samples`: a sample held at position ``p``
+is resampled from stream ``(seed, epoch, rows[p])``, its row in the dataset it was loaded from, so a
+side loaded alone (``rows=`` or ``objects=``) gives exactly the tensors it gives in a whole load, and
+a whole load exactly what `storage.torch.OSVPDataset` gives for the same (seed, epoch, index).
+
+Depends on numpy and `storage` only: no torch here (osvp wraps the arrays as tensors).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from schemas.shard import (
+    COVER_ROWS,
+    COVERS,
+    KEY_SETS,
+    LABEL_COLUMN,
+    MASKS,
+    VIEW_STATE_COLUMN,
+    keys_array,
+    offsets_array,
+)
+from storage.reader import Dataset, open_dataset
+from storage.samples import key_centres, mask_bits, resample_indices
+
+Source = Literal["points", "observed"]
+Progress = Callable[[int, int], None]
+"""Called with (samples read, samples to read) after each shard."""
+MaskArray = npt.NDArray[np.uint64]
+Rows = Sequence[int] | npt.NDArray[np.integer]
+
+
+@dataclass(frozen=True)
+class PackedCovers:
+    """Every held sample's minimum covers and U's set-cover rows (schema version 2), as masks.
+
+    Sample ``p``'s covers are ``covers[cover_offsets[p]:cover_offsets[p + 1]]`` (the label among
+    them, as `storage.Dataset.ambiguity` lists them), its U rows (the view state's already left out)
+    ``universe[universe_offsets[p]:universe_offsets[p + 1]]``."""
+
+    covers: MaskArray
+    cover_offsets: npt.NDArray[np.int64]
+    universe: MaskArray
+    universe_offsets: npt.NDArray[np.int64]
+    support: MaskArray
+    """(S,) mask of the views in any minimum cover (exact even when the listing is capped)."""
+    counts: npt.NDArray[np.int64]
+    """How many minimum covers exist (a lower bound where not ``exact``)."""
+    exact: npt.NDArray[np.bool_]
+
+    def covers_of(self, position: int) -> MaskArray:
+        return self.covers[self.cover_offsets[position] : self.cover_offsets[position + 1]]
+
+    def universe_of(self, position: int) -> MaskArray:
+        return self.universe[self.universe_offsets[position] : self.universe_offsets[position + 1]]
+
+
+@dataclass(frozen=True)
+class ArrayBatch:
+    """Samples as plain numpy arrays (what `storage.torch.OSVPDataset` gives as tensors)."""
+
+    points: npt.NDArray[np.float32]
+    """(B, N, 3) key centres, metres."""
+    view_state: npt.NDArray[np.float32]
+    """(B, n) 0/1."""
+    label: npt.NDArray[np.float32]
+    """(B, n) 0/1."""
+
+
+@dataclass(frozen=True)
+class MemoryDataset:
+    """Samples of a dataset held in memory; position ``p`` is the dataset's row ``rows[p]``."""
+
+    url: str
+    config_hash: str
+    """The dataset's own record (``dataset.json``), never recomputed: that would hash this
+    machine's datagen files, not the dataset's."""
+    schema_version: int
+    num_views: int
+    voxel_size: float
+    grid_offset: npt.NDArray[np.float64]
+    source: Source
+    rows: npt.NDArray[np.int64]
+    """(S,) the dataset row of each held sample: its resampling stream."""
+    keys: npt.NDArray[np.int16]
+    """(K, 3) every held sample's keys, packed in position order."""
+    offsets: npt.NDArray[np.int64]
+    """(S + 1,) sample ``p``'s keys are ``keys[offsets[p]:offsets[p + 1]]``."""
+    view_state_masks: MaskArray
+    label_masks: MaskArray
+    view_state: npt.NDArray[np.float32]
+    """(S, n) 0/1 rows of the view-state masks (bit v = view v)."""
+    labels: npt.NDArray[np.float32]
+    """(S, n) 0/1 rows of the label masks."""
+    object_ids: tuple[str, ...]
+    covers: PackedCovers | None = None
+    """None for a version-1 dataset, or when the load was asked to leave them out."""
+
+    def __len__(self) -> int:
+        return int(self.rows.size)
+
+    def keys_of(self, position: int) -> npt.NDArray[np.int16]:
+        """The integer keys (K, 3) of the sample held at ``position``."""
+        return self.keys[self.offsets[position] : self.offsets[position + 1]]
+
+    def resampled_keys(self, positions: Rows, num_points: int, seed: int, epoch: int) -> npt.NDArray[np.int16]:
+        """(B, num_points, 3) keys of the samples at ``positions``, each drawn from its own stream
+        (seed, epoch, dataset row) by `storage.samples.resample_indices`; an empty cloud stays at
+        the zero key."""
+        index = np.asarray(positions, dtype=np.int64).reshape(-1)
+        chosen = np.zeros((index.size, num_points, 3), dtype=np.int16)
+        starts, stops, streams = self.offsets[index].tolist(), self.offsets[index + 1].tolist(), self.rows[index]
+        for slot, (start, stop, stream) in enumerate(zip(starts, stops, streams.tolist(), strict=True)):
+            if stop > start:
+                chosen[slot] = self.keys[start + resample_indices(stop - start, num_points, seed, epoch, stream)]
+        return chosen
+
+    def batch(self, positions: Rows, num_points: int, seed: int, epoch: int) -> ArrayBatch:
+        """The samples at ``positions`` (0 to len - 1), each resampled to ``num_points`` from its
+        own stream: the same arrays whatever the batch, its order or what else was loaded."""
+        index = np.asarray(positions, dtype=np.int64).reshape(-1)
+        return ArrayBatch(
+            points=key_centres(self.resampled_keys(index, num_points, seed, epoch), self.voxel_size, self.grid_offset),
+            view_state=self.view_state[index],
+            label=self.labels[index],
+        )
+
+
+def load_memory(
+    dataset: str | Dataset,
+    source: Source = "points",
+    *,
+    rows: Rows | None = None,
+    objects: Sequence[str] | None = None,
+    covers: bool = True,
+    progress: Progress | None = None,
+    storage_options: dict[str, Any] | None = None,
+) -> MemoryDataset:
+    """Read samples of ``dataset`` (a URL or an open `Dataset`) into memory, shard by shard.
+
+    ``rows`` (dataset rows, held in that order) and ``objects`` (object ids or names) choose the
+    samples; both given, the rows of those objects; neither, every sample. ``covers=False`` leaves a
+    version-2 dataset's minimum covers unread. A damaged dataset is a `StorageError` naming the
+    file and the fix (`storage.reader`).
+    """
+    if source not in KEY_SETS:
+        raise ValueError(f"source = {source!r}: use 'points' (refined) or 'observed'")
+    found = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, storage_options)
+    chosen = _chosen_rows(found, rows, objects)
+    index = found.index
+    shards = index.column("shard").to_pylist()
+    shard_rows = index.column("row").to_numpy().astype(np.int64, copy=False)
+    groups: dict[str, list[int]] = {}
+    for position, row in enumerate(chosen.tolist()):
+        groups.setdefault(shards[row], []).append(position)
+
+    total, width = chosen.size, found.num_views
+    ambiguous = covers and found.has_ambiguity
+    counts = np.zeros(total, dtype=np.int64)
+    masks = np.zeros((total, 2), dtype=np.uint64)
+    pieces: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.int16]]] = []
+    cover_pieces: list[tuple[npt.NDArray[np.int64], MaskArray, npt.NDArray[np.int64]]] = []
+    universe_pieces: list[tuple[npt.NDArray[np.int64], MaskArray, npt.NDArray[np.int64]]] = []
+    done = 0
+    for relative in sorted(groups):  # the reader's order: shards by path, samples in index order
+        positions = np.asarray(groups[relative], dtype=np.int64)
+        local = shard_rows[chosen[positions]]
+        shard = found.shard(relative)
+        keys, sizes = _ragged_take(shard.array(keys_array(source)), shard.array(offsets_array(source)), local)
+        counts[positions] = sizes
+        pieces.append((positions, keys))
+        masks[positions] = shard.array(MASKS)[local][:, [VIEW_STATE_COLUMN, LABEL_COLUMN]]
+        if ambiguous:
+            listed, listed_sizes = _ragged_take(shard.array(COVERS), shard.array(offsets_array(COVERS)), local)
+            cover_pieces.append((positions, listed, listed_sizes))
+            cover_rows = np.asarray(shard.array(COVER_ROWS), dtype=np.uint64).reshape(-1)
+            misses = (cover_rows[None, :] & masks[positions, VIEW_STATE_COLUMN][:, None]) == 0
+            universe = np.broadcast_to(cover_rows, misses.shape)[misses]
+            universe_pieces.append((positions, universe, misses.sum(axis=1, dtype=np.int64)))
+        done += positions.size
+        if progress is not None:
+            progress(done, total)
+
+    offsets = _offsets(counts)
+    config = found.info.config
+    state_masks, label_masks = masks[:, VIEW_STATE_COLUMN].copy(), masks[:, LABEL_COLUMN].copy()
+    object_column = index.column("object_id").to_pylist()
+    packed_covers = None
+    if ambiguous:
+        columns = {name: index.column(name).to_numpy() for name in ("label_support", "min_covers", "min_covers_exact")}
+        cover_masks, cover_offsets = _pack(cover_pieces, total, np.dtype(np.uint64))
+        universe, universe_offsets = _pack(universe_pieces, total, np.dtype(np.uint64))
+        packed_covers = PackedCovers(
+            covers=cover_masks.astype(np.uint64, copy=False),
+            cover_offsets=cover_offsets,
+            universe=universe.astype(np.uint64, copy=False),
+            universe_offsets=universe_offsets,
+            support=columns["label_support"][chosen].astype(np.uint64),
+            counts=columns["min_covers"][chosen].astype(np.int64),
+            exact=columns["min_covers_exact"][chosen].astype(bool),
+        )
+    return MemoryDataset(
+        url=found.url,
+        config_hash=found.info.config_hash,
+        schema_version=found.info.schema_version,
+        num_views=width,
+        voxel_size=float(config.voxel_size),
+        grid_offset=np.asarray(config.grid_offset, dtype=np.float64),
+        source=source,
+        rows=chosen,
+        keys=_place(pieces, offsets, (3,), np.dtype(np.int16)),
+        offsets=offsets,
+        view_state_masks=state_masks,
+        label_masks=label_masks,
+        view_state=mask_bits(state_masks, width).astype(np.float32),
+        labels=mask_bits(label_masks, width).astype(np.float32),
+        object_ids=tuple(object_column[row] for row in chosen.tolist()),
+        covers=packed_covers,
+    )
+
+
+def _chosen_rows(dataset: Dataset, rows: Rows | None, objects: Sequence[str] | None) -> npt.NDArray[np.int64]:
+    """The dataset rows to hold, in order: ``rows`` (or all), kept where their object is listed."""
+    total = len(dataset)
+    if rows is None:
+        chosen = np.arange(total, dtype=np.int64)
+    else:
+        chosen = np.asarray(rows, dtype=np.int64).reshape(-1)
+        if chosen.size and (chosen.min() < 0 or chosen.max() >= total):
+            raise IndexError(f"rows must lie in 0 to {total - 1} ({dataset.url} holds {total} samples)")
+        if np.unique(chosen).size != chosen.size:
+            raise ValueError("rows repeat a sample; give each dataset row once")
+    if objects is not None:
+        wanted = {objects} if isinstance(objects, str) else set(objects)
+        ids = dataset.index.column("object_id").to_pylist()
+        names = dataset.index.column("object_name").to_pylist()
+        keep = [ids[row] in wanted or names[row] in wanted for row in chosen.tolist()]
+        chosen = chosen[np.asarray(keep, dtype=bool)]
+    return chosen
+
+
+def _ragged_index(starts: npt.NDArray[np.int64], sizes: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """Flat indices of the slices ``starts[i]:starts[i] + sizes[i]``, one after another."""
+    total = int(sizes.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    begins = np.zeros(sizes.size, dtype=np.int64)
+    np.cumsum(sizes[:-1], out=begins[1:])
+    return np.repeat(starts - begins, sizes) + np.arange(total, dtype=np.int64)
+
+
+def _ragged_take(
+    values: npt.NDArray[Any], offsets: npt.NDArray[Any], rows: npt.NDArray[np.int64]
+) -> tuple[npt.NDArray[Any], npt.NDArray[np.int64]]:
+    """The slices ``values[offsets[r]:offsets[r + 1]]`` of ``rows``, concatenated, and their sizes."""
+    bounds = np.asarray(offsets, dtype=np.int64)
+    starts = bounds[rows]
+    sizes = bounds[rows + 1] - starts
+    if rows.size and np.array_equal(rows, np.arange(rows[0], rows[0] + rows.size)):
+        return values[starts[0] : starts[0] + int(sizes.sum())], sizes  # a run of rows: one slice
+    return values[_ragged_index(starts, sizes)], sizes
+
+
+def _offsets(sizes: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    offsets = np.zeros(sizes.size + 1, dtype=np.int64)
+    np.cumsum(sizes, out=offsets[1:])
+    return offsets
+
+
+def _place(
+    pieces: list[tuple[npt.NDArray[np.int64], npt.NDArray[Any]]],
+    offsets: npt.NDArray[np.int64],
+    tail: tuple[int, ...],
+    dtype: np.dtype[Any],
+) -> npt.NDArray[Any]:
+    """One array of the pieces (positions, their values packed) in position order."""
+    if not pieces or offsets[-1] == 0:
+        return np.zeros((0, *tail), dtype=dtype)
+    read = np.concatenate([positions for positions, _ in pieces])
+    if np.array_equal(read, np.arange(read.size)):  # read in position order (a whole load): one copy
+        return np.concatenate([values for _, values in pieces]).astype(dtype, copy=False)
+    packed = np.empty((int(offsets[-1]), *tail), dtype=dtype)
+    for positions, values in pieces:
+        sizes = offsets[positions + 1] - offsets[positions]
+        packed[_ragged_index(offsets[positions], sizes)] = values
+    return packed
+
+
+def _pack(
+    pieces: list[tuple[npt.NDArray[np.int64], npt.NDArray[Any], npt.NDArray[np.int64]]],
+    total: int,
+    dtype: np.dtype[Any],
+) -> tuple[npt.NDArray[Any], npt.NDArray[np.int64]]:
+    """(values, offsets) of the pieces (positions, values packed, sizes) in position order."""
+    sizes = np.zeros(total, dtype=np.int64)
+    for positions, _, found in pieces:
+        sizes[positions] = found
+    offsets = _offsets(sizes)
+    return _place([(positions, values) for positions, values, _ in pieces], offsets, (), dtype), offsets
