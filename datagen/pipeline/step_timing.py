@@ -115,11 +115,13 @@ NOT_RECORDED = "time per step: not recorded (tasks committed before per-step tim
 def totals_from_json(data: dict[str, Any]) -> StepTotals:
     """`StepTotals` back from `StepTotals.to_json` (a job summary in the ledger)."""
     steps = data.get("steps", {})
+    # The ledger may hand the JSON back with its keys sorted: the steps go back into pipeline order.
+    order = [n for n in TASK_STEPS if n in steps] + sorted(n for n in steps if n not in TASK_STEPS)
     return StepTotals(
         tasks=int(data.get("timed_tasks", 0)),
         untimed=int(data.get("untimed_tasks", 0)),
-        cpu={name: float(step["cpu"]) for name, step in steps.items()},
-        wall={name: float(step["wall"]) for name, step in steps.items()},
+        cpu={name: float(steps[name]["cpu"]) for name in order},
+        wall={name: float(steps[name]["wall"]) for name in order},
         total_cpu=float(data.get("total", {}).get("cpu", 0.0)),
         total_wall=float(data.get("total", {}).get("wall", 0.0)),
     )

@@ -20,7 +20,7 @@ from datagen.engine.driver import dataset_info
 from datagen.engine.serve import ledger_for
 from datagen.engine.worker import execute_task
 from datagen.inspection.stats import dataset_stats
-from datagen.pipeline.step_timing import NOT_RECORDED, StepClock, step_lines, step_totals
+from datagen.pipeline.step_timing import NOT_RECORDED, StepClock, StepTotals, step_lines, step_totals, totals_from_json
 from datagen.settings import RunSettings
 from jobs.ledger import Job
 from schemas.index import INDEX_SCHEMA, TASK_STEPS, CommitRecord
@@ -158,3 +158,18 @@ def _copy_tree(source: Path, target: Path) -> None:
             destination = target / path.relative_to(source)
             destination.parent.mkdir(parents=True, exist_ok=True)
             destination.write_bytes(path.read_bytes())
+
+
+def test_a_summary_read_back_with_sorted_keys_lists_the_steps_in_pipeline_order() -> None:
+    """The ledger keeps the job summary as JSON that may come back key-sorted (alphabetical steps);
+    the table `datagen submit` prints still follows the pipeline."""
+    steps = {name: 1.0 + i for i, name in enumerate(TASK_STEPS)}
+    totals = StepTotals(
+        tasks=2, untimed=0, cpu=steps, wall=dict(steps), total_cpu=sum(steps.values()), total_wall=sum(steps.values())
+    )
+    shuffled = json.loads(json.dumps(totals.to_json(), sort_keys=True))
+    back = totals_from_json(shuffled)
+    assert list(back.cpu) == list(TASK_STEPS)
+    assert back.cpu == steps and back.wall == steps
+    names = [line.split()[0] for line in step_lines(back)[2 : 2 + len(TASK_STEPS)]]
+    assert names == list(TASK_STEPS)
