@@ -168,7 +168,7 @@ def load_memory(
     for position, row in enumerate(chosen.tolist()):
         groups.setdefault(shards[row], []).append(position)
 
-    total, width = chosen.size, found.num_views
+    total = chosen.size
     ambiguous = covers and found.has_ambiguity
     counts = np.zeros(total, dtype=np.int64)
     masks = np.zeros((total, 2), dtype=np.uint64)
@@ -196,9 +196,7 @@ def load_memory(
             progress(done, total)
 
     offsets = _offsets(counts)
-    config = found.info.config
     state_masks, label_masks = masks[:, VIEW_STATE_COLUMN].copy(), masks[:, LABEL_COLUMN].copy()
-    object_column = index.column("object_id").to_pylist()
     packed_covers = None
     if ambiguous:
         columns = {name: index.column(name).to_numpy() for name in ("label_support", "min_covers", "min_covers_exact")}
@@ -213,6 +211,37 @@ def load_memory(
             counts=columns["min_covers"][chosen].astype(np.int64),
             exact=columns["min_covers_exact"][chosen].astype(bool),
         )
+    keys = _place(pieces, offsets, (3,), np.dtype(np.int16))
+    return _held(found, source, chosen, keys, offsets, state_masks, label_masks, packed_covers)
+
+
+def load_index_facts(dataset: Dataset, source: Source = "points") -> MemoryDataset:
+    """Every sample's index facts (object, view state, label) and none of its clouds or covers: what
+    drawing a split or a training subset needs, for a dataset too large to hold (read from the
+    index alone, no shard is opened)."""
+    total = len(dataset)
+    index = dataset.index
+    states = index.column("view_state").to_numpy().astype(np.uint64)
+    labels = index.column("label").to_numpy().astype(np.uint64)
+    chosen = np.arange(total, dtype=np.int64)
+    empty = np.zeros((0, 3), dtype=np.int16)
+    return _held(dataset, source, chosen, empty, np.zeros(total + 1, dtype=np.int64), states, labels, None)
+
+
+def _held(
+    found: Dataset,
+    source: Source,
+    chosen: npt.NDArray[np.int64],
+    keys: npt.NDArray[np.int16],
+    offsets: npt.NDArray[np.int64],
+    state_masks: npt.NDArray[np.uint64],
+    label_masks: npt.NDArray[np.uint64],
+    covers: PackedCovers | None,
+) -> MemoryDataset:
+    """The `MemoryDataset` of rows ``chosen`` of ``found``: its identity from ``dataset.json``."""
+    config = found.info.config
+    width = found.num_views
+    object_column = found.index.column("object_id").to_pylist()
     return MemoryDataset(
         url=found.url,
         config_hash=found.info.config_hash,
@@ -222,14 +251,14 @@ def load_memory(
         grid_offset=np.asarray(config.grid_offset, dtype=np.float64),
         source=source,
         rows=chosen,
-        keys=_place(pieces, offsets, (3,), np.dtype(np.int16)),
+        keys=keys,
         offsets=offsets,
         view_state_masks=state_masks,
         label_masks=label_masks,
         view_state=mask_bits(state_masks, width).astype(np.float32),
         labels=mask_bits(label_masks, width).astype(np.float32),
         object_ids=tuple(object_column[row] for row in chosen.tolist()),
-        covers=packed_covers,
+        covers=covers,
     )
 
 

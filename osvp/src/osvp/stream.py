@@ -25,8 +25,7 @@ import torch
 
 import storage
 from osvp.data import Batch, DataError, SampleBank, no_covers
-from storage.memory import MemoryDataset, load_memory
-from storage.samples import mask_bits
+from storage.memory import load_index_facts, load_memory
 from storage.stream import ShardStream
 
 GB = 1e9
@@ -82,29 +81,7 @@ def open_dataset(url: str, covers_for: str | None) -> storage.Dataset:
 def index_bank(dataset: storage.Dataset, source: Literal["points", "observed"] = "points") -> SampleBank:
     """A `SampleBank` of every sample holding no cloud and no covers: the index's facts (object,
     view state, label), enough to draw the split and the training subset as in memory."""
-    total, width = len(dataset), dataset.num_views
-    index = dataset.index
-    states = index.column("view_state").to_numpy().astype(np.uint64)
-    labels = index.column("label").to_numpy().astype(np.uint64)
-    config = dataset.info.config
-    facts = MemoryDataset(
-        url=dataset.url,
-        config_hash=dataset.info.config_hash,
-        schema_version=dataset.info.schema_version,
-        num_views=width,
-        voxel_size=float(config.voxel_size),
-        grid_offset=np.asarray(config.grid_offset, dtype=np.float64),
-        source=source,
-        rows=np.arange(total, dtype=np.int64),
-        keys=np.zeros((0, 3), dtype=np.int16),
-        offsets=np.zeros(total + 1, dtype=np.int64),
-        view_state_masks=states,
-        label_masks=labels,
-        view_state=mask_bits(states, width).astype(np.float32),
-        labels=mask_bits(labels, width).astype(np.float32),
-        object_ids=tuple(index.column("object_id").to_pylist()),
-    )
-    return SampleBank(samples=facts)
+    return SampleBank(samples=load_index_facts(dataset, source))
 
 
 def cap_rows(rows: npt.NDArray[np.int64], cap: int, seed: int) -> npt.NDArray[np.int64]:
