@@ -4,6 +4,7 @@
     python benchmarks/task_cost.py --subset                       # the built-ins + a representative subset
     python benchmarks/task_cost.py --objects builtin:capsule ../shared/meshes/cow.obj
     python benchmarks/task_cost.py --configs before.toml after.toml   # two configs, one invocation
+    python benchmarks/task_cost.py --original --subset            # before/after issue 24's refinement speed-ups
     python benchmarks/task_cost.py --render before.json after.json    # two saved runs, compared
 
 For every object it runs one task (rotation 0) in this process exactly as a worker does
@@ -29,7 +30,10 @@ with the machine's state (load, cores, measured GFLOP/s). ``--configs`` runs eve
 objects in one invocation and adds a comparison table (a before/after of a refiner change: two configs,
 or `measure_task` with two refiners from Python). Every run also saves its raw results as JSON (beside
 the report, or ``--save-json``); ``--render A.json B.json`` reports saved runs as one comparison, e.g.
-the same objects before and after a change of the code. Floors are the best of ``--floor-repeats``
+the same objects before and after a change of the code. ``--original`` measures each config twice,
+first with the POCO refiner's original execution (``PocoRefiner(fast=False)``: the code before issue
+24's speed-ups, same outputs) and then as a worker runs it, task by task in turns so both see the
+same machine. Floors are the best of ``--floor-repeats``
 runs (one when a run takes over `LONG_FLOOR` seconds).
 """
 
@@ -66,6 +70,7 @@ from datagen.pipeline.objects.prepare import load_mesh, prepare_object  # noqa: 
 from datagen.pipeline.objects.spec import ObjectSpec  # noqa: E402
 from datagen.pipeline.refine import make_refiner  # noqa: E402
 from datagen.pipeline.refine.base import Refiner  # noqa: E402
+from datagen.pipeline.refine.poco.refiner import PocoRefiner  # noqa: E402
 from datagen.pipeline.setcover import cover_model, highs_solver, minimal_masks, popcount  # noqa: E402
 from datagen.pipeline.step_timing import StepClock  # noqa: E402
 from datagen.pipeline.task import TaskResult, run_task  # noqa: E402
@@ -220,6 +225,20 @@ def recording(clock: RecordingClock) -> Iterator[Recording]:
             return timed_call("network", original_decode, self, *args, **kwargs)
 
         patches += [(model_class, "encode", encode), (model_class, "decode", decode)]
+        if hasattr(model_class, "decode_inference"):
+            original_inference = model_class.decode_inference
+
+            # The fast execution's decoder, decode_inference(latents, points, queries, knn, chunk):
+            # the same values as decode, so its FLOPs are counted by replaying decode on its inputs.
+            def decode_inference(self: Any, *args: Any, **kwargs: Any) -> Any:
+                found.model = self
+                with contextlib.suppress(IndexError, AttributeError, TypeError):
+                    found.network.setdefault(clock.current, []).append(NetworkCall("decode", int(args[2].shape[-1])))
+                    if found.first_decode is None and args[2].shape[-1] > 1:
+                        found.first_decode = (_detached(args[:4]), {})
+                return timed_call("network", original_inference, self, *args, **kwargs)
+
+            patches.append((model_class, "decode_inference", decode_inference))
     # The rest of a refinement, where the poco refiner still has these: its queries (band minus
     # observed minus sensor-empty keys) and the encoder's quantized sampling.
     refiner_module = sys.modules.get("datagen.pipeline.refine.poco.refiner")
@@ -874,6 +893,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--configs", nargs="*", help="generation configs (TOML) to compare; default: the default config"
     )
+    parser.add_argument(
+        "--original",
+        action="store_true",
+        help="also measure each config with the POCO refiner's original execution (before issue 24), in turns",
+    )
     parser.add_argument("--rotation", type=int, default=0, help="the task's rotation (default 0)")
     parser.add_argument("--floor-repeats", type=int, default=3, help="runs per floor; the best counts (default 3)")
     parser.add_argument("--no-warm-up", action="store_true", help="skip the untimed warm-up task")
@@ -893,6 +917,22 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
+def original_execution(refiner: Refiner) -> Refiner:
+    """The same POCO refiner running its original execution (``fast=False``: the code before issue
+    24's speed-ups, bit-identical outputs); any other refiner as it is."""
+    if not isinstance(refiner, PocoRefiner):
+        return refiner
+    return PocoRefiner(
+        refiner.config,
+        refiner.model,
+        refiner.weights_id,
+        refiner.threshold,
+        refiner.finetune_steps,
+        refiner.device,
+        fast=False,
+    )
+
+
 def measure(args: argparse.Namespace) -> Run:
     sources = args.objects or default_sources(args.subset)
     specs = object_specs(sources)
@@ -907,14 +947,19 @@ def measure(args: argparse.Namespace) -> Run:
         f"load {load_before}",
         flush=True,
     )
-    results: list[list[TaskCost]] = []
+    variants: list[tuple[str, str, GenerationConfig, Refiner]] = []
     for label, path in zip(labels, config_paths, strict=True):
         config = load_config(path)
         refiner = make_refiner(config)
-        if not args.no_warm_up:  # imports, torch's first kernels: not part of a task in a warm worker
+        if args.original:
+            variants.append((f"{label}-original", str(path or ""), config, original_execution(refiner)))
+        variants.append((label, str(path or ""), config, refiner))
+    if not args.no_warm_up:  # imports, torch's first kernels: not part of a task in a warm worker
+        for _, _, config, refiner in variants:
             measure_task(object_specs(["builtin:capsule"])[0], config, refiner=refiner, gflops=gflops, floor_repeats=1)
-        costs = []
-        for spec in specs:
+    results: list[list[TaskCost]] = [[] for _ in variants]
+    for spec in specs:  # object by object, every variant in turn: a change of load hits them alike
+        for (label, _, config, refiner), costs in zip(variants, results, strict=True):
             cost = measure_task(
                 spec, config, rotation=args.rotation, refiner=refiner, gflops=gflops, floor_repeats=args.floor_repeats
             )
@@ -925,10 +970,10 @@ def measure(args: argparse.Namespace) -> Run:
                 f"load {loadavg()}",
                 flush=True,
             )
-        results.append(costs)
     wall = time.perf_counter() - wall_before
     others = (machine_busy_seconds() - busy_before - (time.process_time() - own_before)) / wall if wall else 0.0
-    configs = [str(p) if p is not None else "" for p in config_paths]
+    labels = [label for label, _, _, _ in variants]
+    configs = [config for _, config, _, _ in variants]
     return Run(labels, configs, results, gflops, started, load_before, loadavg(), others, wall, machine_line())
 
 

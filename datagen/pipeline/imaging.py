@@ -14,6 +14,7 @@ view's camera centre, so the sensor-visible empty space (camera-to-hit segments)
 
 from __future__ import annotations
 
+import hashlib
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -55,6 +56,16 @@ class Observation:
         for view in self.views:
             value |= 1 << view
         return value
+
+    def view_digest(self, view: int) -> bytes:
+        """A digest of one view's part (its id, camera centre and points): equal for the same view's
+        data in a single-view observation and in any case that holds it, so caches can key on it."""
+        points = np.ascontiguousarray(self.points[self.point_views == view])
+        origin = np.ascontiguousarray(self.origins[self.views.index(view)], dtype=np.float64)
+        digest = hashlib.blake2b(digest_size=16)
+        for part in (np.int64(view).tobytes(), origin.tobytes(), str(points.dtype).encode(), points.tobytes()):
+            digest.update(part)
+        return digest.digest()
 
     def point_origins(self) -> npt.NDArray[np.float64]:
         """Camera centre of each point's view: the start of its sensor ray."""

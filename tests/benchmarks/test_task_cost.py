@@ -4,9 +4,7 @@ they patch, and one whole task (refiner none) is measured with a floor for each 
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -14,23 +12,17 @@ from typing import Any
 import numpy as np
 import pytest
 import trimesh
+from support.benchmarks import load_benchmark
 
 from datagen.pipeline import raycast
 from datagen.pipeline.setcover import minimal_masks
 from schemas.config import GenerationConfig
 from schemas.index import TASK_STEPS
 
-SCRIPT = Path(__file__).resolve().parents[2] / "benchmarks" / "task_cost.py"
-
 
 @pytest.fixture(scope="module")
 def task_cost() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("task_cost_benchmark", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_benchmark("task_cost")
 
 
 def test_cpu_and_matmul_rate(task_cost: ModuleType) -> None:
@@ -154,3 +146,53 @@ def test_one_task_measured_with_a_floor_for_each_step(task_cost: ModuleType, tmp
     report = "\n".join(task_cost.render(task_cost.merged([("before", run), ("after", run)])))
     assert "## before:default: 1 tasks" in report and "## after:default: 1 tasks" in report
     assert "## Comparison" in report and "| write |" in report
+
+
+def test_original_execution_is_the_same_poco_refiner_unoptimised(task_cost: ModuleType) -> None:
+    from datagen.pipeline.refine import make_refiner
+
+    fast = make_refiner(GenerationConfig())
+    original = task_cost.original_execution(fast)
+    assert fast.fast and not original.fast and original.depth_buffers is None  # --original's "before"
+    assert original.model is fast.model and original.weights_id == fast.weights_id
+    assert original.threshold == fast.threshold and original.config == fast.config
+    carve = make_refiner(GenerationConfig(refiner="carve"))
+    assert task_cost.original_execution(carve) is carve  # nothing to switch off
+
+
+@pytest.mark.parametrize("fast", [False, True], ids=["original", "fast"])
+def test_both_executions_record_the_same_network_work(task_cost: ModuleType, fast: bool) -> None:
+    """The fast execution decodes through `decode_inference`: the hooks time it as network and count
+    its FLOPs by replaying `decode`, so the two executions' floors are the same."""
+    import torch
+
+    from datagen.pipeline.refine.poco.network import PocoModel
+
+    torch.manual_seed(0)  # the weights of a throwaway model; nothing here is compared across runs
+    model = PocoModel("tiny").eval()
+    points = torch.rand(1, 3, 256, generator=torch.Generator().manual_seed(1))
+    queries = torch.rand(1, 3, 40, generator=torch.Generator().manual_seed(2))
+    found = _recorded(task_cost, model, points, queries, fast)
+    calls = [(call.kind, call.size) for call in found.network["refine_views"]]
+    assert calls == [("encode", 256), ("decode", 40)]
+    assert found.seconds["refine_views"]["network"] > 0.0
+    flops = task_cost.network_flops(found)["refine_views"]
+    assert flops > 0
+    # The same recording made by the other execution counts the same FLOPs.
+    assert flops == task_cost.network_flops(_recorded(task_cost, model, points, queries, not fast))["refine_views"]
+
+
+def _recorded(task_cost: ModuleType, model: Any, points: Any, queries: Any, fast: bool) -> Any:
+    """The hooks' recording of one encode and decode, by the fast or the original execution."""
+    import torch
+
+    clock = task_cost.RecordingClock()
+    with task_cost.recording(clock) as found, clock.step("refine_views"), torch.no_grad():
+        tables = model.tables(points, torch.Generator().manual_seed(3))
+        knn = model.query_knn(points, queries)
+        latents = model.encode(points, model.features(points), tables)
+        if fast:
+            model.decode_inference(latents, points, queries, knn, 16)
+        else:
+            model.decode(latents, points, queries, knn, chunk_size=16)
+    return found

@@ -11,6 +11,7 @@ config hash, is deterministic, and stays close to version 1.
 from __future__ import annotations
 
 import dataclasses
+import importlib.metadata
 import itertools
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from datagen.pipeline.objects.objects_file import read_objects_file
 from datagen.pipeline.objects.prepare import prepare_object
 from datagen.pipeline.objects.spec import ObjectSpec
 from datagen.pipeline.refine import RefineRequest, make_refiner
+from datagen.pipeline.refine.base import ViewBands, band_keys
 from datagen.pipeline.refine.freespace import DepthBuffers, cropped_depth, depth_buffer, sensor_empty
 from datagen.pipeline.refine.poco import network, spatial
 from datagen.pipeline.refine.poco import refiner as poco_refiner
@@ -218,6 +220,27 @@ def test_depth_buffers_reuse_gives_the_same_empty_space(capsule_scan: TaskImagin
     assert len(buffers._buffers) == 3  # bounded: least recently used dropped
 
 
+def test_view_bands_give_every_case_its_own_band(capsule_scan: TaskImaging) -> None:
+    singles = capsule_scan.observations
+    bands = ViewBands(CONFIG.band_keys_sq, capacity=3)
+    for view in (2, 9, 20):
+        assert np.array_equal(bands.band(singles[view]), band_keys(singles[view].keys, CONFIG.band_keys_sq))
+    cases = [(2, 9), (2, 9, 20), (9, 30), (30,), (9, 30)]  # all kept; 30 not yet seen; then 2 dropped
+    for views in cases:
+        observation = Observation.combine([singles[v] for v in views])
+        assert np.array_equal(bands.band(observation), band_keys(observation.keys, CONFIG.band_keys_sq)), views
+    assert len(bands._views) == 3
+    # Keys its views' kept keys do not unite to (a different observation with the same points) get
+    # their own band, not the union.
+    case = Observation.combine([singles[9], singles[30]])
+    beside = np.setdiff1d(band_keys(case.keys, CONFIG.band_keys_sq), case.keys)[:1]  # one unobserved band key
+    extra = np.union1d(case.keys, beside)
+    odd = dataclasses.replace(case, keys=extra)
+    assert np.array_equal(bands.band(odd), band_keys(extra, CONFIG.band_keys_sq))
+    got = query_keys(case, CONFIG, DepthBuffers(), bands)
+    assert all(np.array_equal(a, b) for a, b in zip(got, query_keys(case, CONFIG), strict=True))
+
+
 def test_depth_buffers_key_on_content(capsule_scan: TaskImaging) -> None:
     """Two observations holding the same view with different points never share a buffer."""
     single = capsule_scan.observations[6]
@@ -262,6 +285,18 @@ def test_poco_version_2_needs_pykdtree(monkeypatch: pytest.MonkeyPatch) -> None:
     with pytest.raises(ConfigError, match="pykdtree"):
         make_refiner(GenerationConfig(poco_version=2))
     assert isinstance(make_refiner(GenerationConfig(poco_version=1)), PocoRefiner)
+
+
+PUBLISHED_WHEEL_PLATFORMS = ("manylinux", "musllinux", "macosx", "win")
+
+
+@pytest.mark.skipif(not spatial.pykdtree_available(), reason="pykdtree not installed")
+def test_pykdtree_is_installed_from_a_published_wheel() -> None:
+    """Issue 24's one new dependency needs no compiler: pip took a published binary wheel (a wheel
+    pip builds from the sdist is tagged plain ``linux_x86_64``)."""
+    wheel = importlib.metadata.distribution("pykdtree").read_text("WHEEL") or ""
+    platforms = [line.rsplit("-", 1)[-1] for line in wheel.splitlines() if line.startswith("Tag: ")]
+    assert platforms and all(p.startswith(PUBLISHED_WHEEL_PLATFORMS) for p in platforms), wheel
 
 
 @pytest.mark.slow

@@ -9,6 +9,7 @@ else; `RefineRequest` carries the seed material.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -96,3 +97,42 @@ def band_keys(keys: npt.NDArray[np.int64], radius_sq: int) -> npt.NDArray[np.int
 def _shifted(shift: int, size: int) -> slice:
     """The cells of an axis of ``size`` that remain after moving everything by ``shift``."""
     return slice(max(shift, 0), size + min(shift, 0))
+
+
+class ViewBands:
+    """Band keys of the single views a refiner has seen, so that a case's band is the union of its
+    views' bands (the band of a union of key sets is the union of their bands) instead of a new
+    dilation: ~5x cheaper for the cases of a task, which follow its single views.
+
+    Each single view's keys are kept beside its band, keyed by `Observation.view_digest`; a case
+    uses the union only when its views' kept keys unite to exactly its own keys, so the answer is
+    always `band_keys` of the observation. Least recently used views are dropped past ``capacity``.
+    """
+
+    def __init__(self, radius_sq: int, capacity: int = 64) -> None:
+        self.radius_sq = int(radius_sq)
+        self.capacity = capacity
+        self._views: OrderedDict[bytes, tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]] = OrderedDict()
+
+    def band(self, observation: Observation) -> npt.NDArray[np.int64]:
+        """`band_keys` of the observation's keys."""
+        digests = [observation.view_digest(view) for view in observation.views]
+        if len(digests) == 1:
+            band = band_keys(observation.keys, self.radius_sq)
+            self._keep(digests[0], observation.keys, band)
+            return band
+        kept = [self._views.get(digest) for digest in digests]
+        if any(entry is None for entry in kept):
+            return band_keys(observation.keys, self.radius_sq)
+        parts = [entry for entry in kept if entry is not None]
+        for digest in digests:
+            self._views.move_to_end(digest)
+        if not np.array_equal(np.unique(np.concatenate([keys for keys, _ in parts])), observation.keys):
+            return band_keys(observation.keys, self.radius_sq)
+        return np.unique(np.concatenate([band for _, band in parts]))
+
+    def _keep(self, digest: bytes, keys: npt.NDArray[np.int64], band: npt.NDArray[np.int64]) -> None:
+        self._views[digest] = (keys, band)
+        self._views.move_to_end(digest)
+        while len(self._views) > self.capacity:
+            self._views.popitem(last=False)

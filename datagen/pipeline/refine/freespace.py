@@ -13,7 +13,6 @@ full image), which changes no value.
 
 from __future__ import annotations
 
-import hashlib
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -100,10 +99,7 @@ class DepthBuffers:
         self._buffers: OrderedDict[tuple[object, ...], CroppedDepth] = OrderedDict()
 
     def get(self, observation: Observation, view: int, camera: CameraConfig, voxel_size: float) -> CroppedDepth:
-        points = np.ascontiguousarray(observation.points[observation.point_views == view])
-        origin = np.ascontiguousarray(observation.origins[observation.views.index(view)], dtype=np.float64)
-        digest = hashlib.blake2b(points.tobytes(), digest_size=16).digest()
-        key = (view, origin.tobytes(), digest, str(points.dtype), points.shape, camera, float(voxel_size))
+        key = (observation.view_digest(view), camera, float(voxel_size))
         found = self._buffers.get(key)
         if found is not None:
             self._buffers.move_to_end(key)
@@ -134,14 +130,33 @@ def sensor_empty(
     centres = key_centres(unpack_keys(keys), voxel_size, grid_offset)
     for view in observation.views:
         if buffers is not None:
+            # A key one view saw empty stays empty: later views test only the others (same answer).
+            undecided = np.flatnonzero(~empty) if view != observation.views[0] else None
+            if undecided is not None and undecided.size == 0:
+                break
             crop = buffers.get(observation, view, camera, voxel_size)
+            tested = centres if undecided is None else centres[undecided]
+            seen_past = _seen_past(crop, tested, camera, voxel_size)
+            if undecided is None:
+                empty = seen_past
+            else:
+                empty[undecided] = seen_past
         else:
             crop = cropped_depth(observation, view, camera, voxel_size, crop=False)
-        local = crop.pose.world_to_camera(centres)
-        uv = project(camera, local)
-        u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
-        inside = (local[:, 2] > 0) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-        observed = np.full(keys.size, np.inf)
-        observed[inside] = crop.lookup(u[inside], v[inside])
-        empty |= local[:, 2] < observed - voxel_size
+            empty |= _seen_past(crop, centres, camera, voxel_size)
     return empty
+
+
+def _seen_past(
+    crop: CroppedDepth, centres: npt.NDArray[np.floating], camera: CameraConfig, voxel_size: float
+) -> npt.NDArray[np.bool_]:
+    """Whether the view of ``crop`` saw past each centre: it lies more than a voxel in front of the
+    observed depth at its pixel (never for centres behind the camera or outside the image)."""
+    local = crop.pose.world_to_camera(centres)
+    uv = project(camera, local)
+    u, v = np.floor(uv[:, 0]).astype(np.int64), np.floor(uv[:, 1]).astype(np.int64)
+    inside = (local[:, 2] > 0) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    observed = np.full(centres.shape[0], np.inf)
+    observed[inside] = crop.lookup(u[inside], v[inside])
+    seen: npt.NDArray[np.bool_] = local[:, 2] < observed - voxel_size
+    return seen

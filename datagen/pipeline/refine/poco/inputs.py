@@ -24,7 +24,7 @@ from torch import Tensor
 
 from datagen.pipeline.imaging import Observation
 from datagen.pipeline.keys import key_centres, points_to_packed, unpack_keys
-from datagen.pipeline.refine.base import band_keys
+from datagen.pipeline.refine.base import ViewBands, band_keys
 from datagen.pipeline.refine.freespace import DepthBuffers, sensor_empty
 from datagen.pipeline.refine.poco.network import PocoModel
 from datagen.pipeline.refine.poco.spatial import KnnBackend
@@ -73,13 +73,20 @@ def normalise(points: npt.NDArray[np.float64], centre: npt.NDArray[np.float64]) 
 
 
 def query_keys(
-    observation: Observation, config: GenerationConfig, buffers: DepthBuffers | None = None
+    observation: Observation,
+    config: GenerationConfig,
+    buffers: DepthBuffers | None = None,
+    bands: ViewBands | None = None,
 ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
     """(unknown, queries, empty): band minus keys(O); those not sensor-empty; the sensor-empty mask.
 
-    ``buffers`` keeps views' depth buffers between calls (`freespace.DepthBuffers`; same result).
+    ``buffers`` keeps views' depth buffers between calls (`freespace.DepthBuffers`), ``bands`` their
+    bands (`base.ViewBands`, for ``config.band_keys_sq``); the result is the same with or without.
     """
-    band = band_keys(observation.keys, config.band_keys_sq)
+    if bands is not None and bands.radius_sq == config.band_keys_sq:
+        band = bands.band(observation)
+    else:
+        band = band_keys(observation.keys, config.band_keys_sq)
     unknown = np.setdiff1d(band, observation.keys, assume_unique=True)
     empty = sensor_empty(unknown, observation, config.camera, config.voxel_size, config.grid_offset, buffers)
     return unknown, unknown[~empty], empty

@@ -12,13 +12,14 @@ quantized sampling of the encoder, and the optional fine-tuning draws) comes fro
 REFINER_NOISE stream (docs/pipeline.md section 9), so a call is a function of (O, seed, object, rotation,
 mask, weights, config). On CPU it is deterministic for a fixed torch thread count.
 
-Speed (issue 24): the refiner keeps the depth buffers of the views it has seen (`freespace.DepthBuffers`:
-a task's cases reuse its single views) and runs the network through its inference path
-(`inputs.predict_probs` with ``fast=True``: cache-sized decoder sub-chunks, in-place updates, and in
-the encoder a vectorised neighbour norm, amax, batch_norm for one sample's instance norm: see
-`network.FAST_OPS`). Every one of these gives bit-identical probabilities, so the refiner's outputs,
-and the dataset's identity, are those of the original execution, which ``fast=False`` still runs
-(benchmarks/refine_speed.py, tests/pipeline/test_refine_speed.py).
+Speed (issue 24): the refiner keeps the depth buffers and the bands of the views it has seen
+(`freespace.DepthBuffers`, `base.ViewBands`: a task's cases reuse its single views) and runs the
+network through its inference path (`inputs.predict_probs` with ``fast=True``: cache-sized decoder
+sub-chunks, in-place updates, and in the encoder a vectorised neighbour norm, amax, batch_norm for
+one sample's instance norm: see `network.FAST_OPS`). Every one of these gives bit-identical
+probabilities, so the refiner's outputs, and the dataset's identity, are those of the original
+execution, which ``fast=False`` still runs (benchmarks/refine_speed.py,
+tests/pipeline/test_refine_speed.py).
 
 Versions (``GenerationConfig.poco_version``, part of the config hash): 1 is the computation above with
 scipy's cKDTree building every neighbour table (all datasets made before versions existed); 2 builds
@@ -51,7 +52,7 @@ from threadpoolctl import threadpool_limits
 from datagen.errors import ConfigError
 from datagen.pipeline.keys import key_centres, unpack_keys
 from datagen.pipeline.random_streams import Purpose, stream
-from datagen.pipeline.refine.base import RefineRequest
+from datagen.pipeline.refine.base import RefineRequest, ViewBands
 from datagen.pipeline.refine.freespace import DepthBuffers
 from datagen.pipeline.refine.poco import network
 from datagen.pipeline.refine.poco.inputs import (
@@ -119,6 +120,7 @@ class PocoRefiner:
         the original operations: `network.FAST_OPS`); the same outputs, for benchmarks and the tests
         that check so."""
         self.depth_buffers: DepthBuffers | None = DepthBuffers() if fast else None
+        self.view_bands: ViewBands | None = ViewBands(config.band_keys_sq) if fast else None
         self._inside = False
 
     @contextmanager
@@ -153,7 +155,7 @@ class PocoRefiner:
         observation = request.observation
         if observation.keys.size == 0:
             return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float32)
-        _, queries, _ = query_keys(observation, config, self.depth_buffers)
+        _, queries, _ = query_keys(observation, config, self.depth_buffers, self.view_bands)
         if queries.size == 0:
             return queries, np.empty(0, dtype=np.float32)
         rng = stream(request.seed, request.object_id, request.rotation, Purpose.REFINER_NOISE, request.mask)
@@ -190,7 +192,7 @@ class PocoRefiner:
     ) -> PocoModel:
         config = self.config
         observation = request.observation
-        unknown, _, empty = query_keys(observation, config, self.depth_buffers)
+        unknown, _, empty = query_keys(observation, config, self.depth_buffers, self.view_bands)
         negatives = key_centres(unpack_keys(unknown[empty]), config.voxel_size, config.grid_offset)
         model = copy.deepcopy(self.model).train()
         optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
