@@ -216,29 +216,37 @@ def recording(clock: RecordingClock) -> Iterator[Recording]:
                     found.first_encode = (_detached(args), dict(kwargs))
             return timed_call("network", original_encode, self, *args, **kwargs)
 
-        def decode(self: Any, *args: Any, **kwargs: Any) -> Any:
-            found.model = self
-            with contextlib.suppress(IndexError, AttributeError, TypeError):
-                found.network.setdefault(clock.current, []).append(NetworkCall("decode", int(args[2].shape[-1])))
-                if found.first_decode is None and args[2].shape[-1] > 1:
-                    found.first_decode = (_detached(args), dict(kwargs))
-            return timed_call("network", original_decode, self, *args, **kwargs)
+        def decoder_hook(original: Callable[..., Any], replayable: Callable[..., Any]) -> Callable[..., Any]:
+            """A decoder entry point (queries its third argument) timed as network; ``replayable``
+            turns its arguments into a `decode` call for the FLOP count."""
 
-        patches += [(model_class, "encode", encode), (model_class, "decode", decode)]
-        if hasattr(model_class, "decode_inference"):
-            original_inference = model_class.decode_inference
-
-            # The fast execution's decoder, decode_inference(latents, points, queries, knn, chunk):
-            # the same values as decode, so its FLOPs are counted by replaying decode on its inputs.
-            def decode_inference(self: Any, *args: Any, **kwargs: Any) -> Any:
+            def decode(self: Any, *args: Any, **kwargs: Any) -> Any:
+                if decoding:  # decode_inference falling back to decode: counted once, by the outer call
+                    return original(self, *args, **kwargs)
                 found.model = self
                 with contextlib.suppress(IndexError, AttributeError, TypeError):
                     found.network.setdefault(clock.current, []).append(NetworkCall("decode", int(args[2].shape[-1])))
                     if found.first_decode is None and args[2].shape[-1] > 1:
-                        found.first_decode = (_detached(args[:4]), {})
-                return timed_call("network", original_inference, self, *args, **kwargs)
+                        found.first_decode = replayable(args, kwargs)
+                decoding.append(True)
+                try:
+                    return timed_call("network", original, self, *args, **kwargs)
+                finally:
+                    decoding.pop()
 
-            patches.append((model_class, "decode_inference", decode_inference))
+            return decode
+
+        decoding: list[bool] = []
+
+        patches += [
+            (model_class, "encode", encode),
+            (model_class, "decode", decoder_hook(original_decode, lambda a, k: (_detached(a), dict(k)))),
+        ]
+        if hasattr(model_class, "decode_inference"):
+            # The fast execution's decoder, decode_inference(latents, points, queries, knn, chunk):
+            # the same values as decode, so its FLOPs are counted by replaying decode on its inputs.
+            inference = decoder_hook(model_class.decode_inference, lambda a, _: (_detached(a[:4]), {}))
+            patches.append((model_class, "decode_inference", inference))
     # The rest of a refinement, where the poco refiner still has these: its queries (band minus
     # observed minus sensor-empty keys) and the encoder's quantized sampling.
     refiner_module = sys.modules.get("datagen.pipeline.refine.poco.refiner")

@@ -160,16 +160,20 @@ def test_original_execution_is_the_same_poco_refiner_unoptimised(task_cost: Modu
     assert task_cost.original_execution(carve) is carve  # nothing to switch off
 
 
-@pytest.mark.parametrize("fast", [False, True], ids=["original", "fast"])
-def test_both_executions_record_the_same_network_work(task_cost: ModuleType, fast: bool) -> None:
+@pytest.mark.parametrize(
+    ("fast", "layout"), [(False, None), (True, None), (True, "last")], ids=["original", "fast", "fast-via-decode"]
+)
+def test_both_executions_record_the_same_network_work(task_cost: ModuleType, fast: bool, layout: str | None) -> None:
     """The fast execution decodes through `decode_inference`: the hooks time it as network and count
-    its FLOPs by replaying `decode`, so the two executions' floors are the same."""
+    its FLOPs by replaying `decode`, so the two executions' floors are the same. Where it falls back
+    to `decode` itself (the channels-last layout) the call is still counted once."""
     import torch
 
     from datagen.pipeline.refine.poco.network import PocoModel
 
     torch.manual_seed(0)  # the weights of a throwaway model; nothing here is compared across runs
     model = PocoModel("tiny").eval()
+    model.projection.fast_layout = layout
     points = torch.rand(1, 3, 256, generator=torch.Generator().manual_seed(1))
     queries = torch.rand(1, 3, 40, generator=torch.Generator().manual_seed(2))
     found = _recorded(task_cost, model, points, queries, fast)

@@ -129,21 +129,16 @@ def sensor_empty(
         return empty
     centres = key_centres(unpack_keys(keys), voxel_size, grid_offset)
     for view in observation.views:
-        if buffers is not None:
-            # A key one view saw empty stays empty: later views test only the others (same answer).
-            undecided = np.flatnonzero(~empty) if view != observation.views[0] else None
-            if undecided is not None and undecided.size == 0:
-                break
-            crop = buffers.get(observation, view, camera, voxel_size)
-            tested = centres if undecided is None else centres[undecided]
-            seen_past = _seen_past(crop, tested, camera, voxel_size)
-            if undecided is None:
-                empty = seen_past
-            else:
-                empty[undecided] = seen_past
-        else:
+        if buffers is None:
             crop = cropped_depth(observation, view, camera, voxel_size, crop=False)
             empty |= _seen_past(crop, centres, camera, voxel_size)
+            continue
+        # A key one view saw empty stays empty: each view tests only the keys still undecided.
+        undecided = np.flatnonzero(~empty)
+        if undecided.size == 0:
+            break
+        crop = buffers.get(observation, view, camera, voxel_size)
+        empty[undecided] = _seen_past(crop, centres[undecided], camera, voxel_size)
     return empty
 
 
