@@ -36,7 +36,7 @@ import numpy.typing as npt  # noqa: E402
 import storage  # noqa: E402
 from datagen.pipeline.coverage import coverage_table  # noqa: E402
 from datagen.pipeline.keys import pack_keys  # noqa: E402
-from datagen.pipeline.task import task_cover  # noqa: E402
+from datagen.pipeline.objectives import cover_solver  # noqa: E402
 from schemas.shard import MASKS, VIEW_STATE_COLUMN  # noqa: E402
 
 
@@ -85,8 +85,8 @@ def main() -> None:
         refined = [packed[offsets[v] : offsets[v + 1]] for v in range(config.num_views)]
         masks = coverage_table(refined, config.alpha).masks
         cases = [int(c) for c in shard.array(MASKS)[:, VIEW_STATE_COLUMN]]
-        labels, seconds_alone = timed_labels(task_cover(masks, config, list_covers=False), cases)
-        results, seconds_listed = timed_labels(task_cover(masks, config), cases)
+        labels, seconds_alone = timed_labels(cover_solver(masks, config, list_covers=False), cases)
+        results, seconds_listed = timed_labels(cover_solver(masks, config), cases)
         alone += seconds_alone
         listed += seconds_listed
         for case, label, result in zip(cases, labels, results, strict=True):

@@ -15,6 +15,7 @@ import hashlib
 import importlib.util
 import json
 import math
+from fractions import Fraction
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -97,9 +98,20 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "label_tie_break": "index",
     "label_cover_cap": DEFAULT_COVER_CAP,
     "poco_version": 1,
+    "label_objective": "cover",
 }
 """Fields that enter the hash only when they differ from the value that reproduces what datasets
 made before them hold."""
+
+LabelObjective = Literal["cover", "max_coverage", "partial_cover"]
+LABEL_OBJECTIVES: tuple[str, ...] = ("cover", "max_coverage", "partial_cover")
+OBJECTIVE_FIELDS: dict[str, tuple[str, ...]] = {
+    "cover": (),
+    "max_coverage": ("label_budget",),
+    "partial_cover": ("label_tau",),
+}
+"""The label fields each objective reads; the others' never enter the hash (they change nothing)."""
+_DROPPED_UNLESS_USED = frozenset(name for names in OBJECTIVE_FIELDS.values() for name in names)
 
 
 class GenerationConfig(_Frozen):
@@ -150,6 +162,16 @@ class GenerationConfig(_Frozen):
     label_cover_cap: int = Field(DEFAULT_COVER_CAP, ge=1, le=1 << 20, strict=True)
     """Most minimum covers a sample lists beside its label; past it the count of minimum covers is
     a lower bound (the support, the views of any minimum cover, stays exact)."""
+    label_objective: LabelObjective = "cover"
+    """What a label is (docs/pipeline.md section 7.5): 'cover', the paper's (the fewest views covering
+    P_full's keys the input misses); 'max_coverage', the at most `label_budget` views that see the most
+    of what all views see; 'partial_cover', the fewest views that bring what is seen to `label_tau` of
+    what all views see, seeing the most among those. The last two are judged on the visibility sets V_i,
+    the coverage `datagen evaluate` reports."""
+    label_budget: int = Field(3, ge=1, le=MAX_VIEWS, strict=True)
+    """'max_coverage': most views a label may hold beyond the input views."""
+    label_tau: float = Field(0.9, gt=0.0, le=1.0, allow_inf_nan=False)
+    """'partial_cover': the share of what all views see that input and label must see together."""
 
     @field_validator("grid_offset")
     @classmethod
@@ -173,9 +195,23 @@ class GenerationConfig(_Frozen):
             raise ValueError(f"alpha = {self.alpha} is outside the allowed range 1..{n} (view_space.count)")
         return self
 
+    @model_validator(mode="after")
+    def _tie_break_of_covers(self) -> GenerationConfig:
+        if self.label_objective != "cover" and self.label_tie_break != "index":
+            raise ValueError(
+                f"label_tie_break = {self.label_tie_break!r} ranks views by the cover problem's U; the "
+                f"{self.label_objective!r} objective breaks ties by view index: leave label_tie_break = 'index'"
+            )
+        return self
+
     @property
     def num_views(self) -> int:
         return self.view_space.count
+
+    def tau_keys(self, reference: int) -> int:
+        """The least number of keys that is at least `label_tau` of ``reference`` keys (tau read as the
+        decimal it was written as, so 0.9 of 1,000 keys is 900, not 901)."""
+        return math.ceil(Fraction(self.label_tau).limit_denominator(1_000_000) * reference)
 
     @property
     def band_keys_sq(self) -> int:
@@ -207,6 +243,8 @@ class GenerationConfig(_Frozen):
         for name, value in FIELDS_ADDED_LATER.items():
             if data[name] == value:
                 del data[name]  # a dataset made before the field existed keeps its hash
+        for name in _DROPPED_UNLESS_USED - set(OBJECTIVE_FIELDS[self.label_objective]):
+            del data[name]  # a field the objective does not read changes no sample
         if self.view_space.is_file:
             data["view_space"]["source"] = "sha256:" + file_sha256(Path(self.view_space.source))
         if self.refiner == "poco" or self.poco_weights != BUILTIN_POCO_WEIGHTS:

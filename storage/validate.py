@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 import pyarrow as pa
 
+from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import (
@@ -41,6 +42,7 @@ from storage.file_checks import check_failures, check_finalised_index, check_fra
 from storage.location import DamagedFile, Location, StorageError, open_location
 from storage.shards import ShardReader
 from storage.store_errors import check_store
+from storage.visibility import VisibilityJudge, key_view_masks
 from storage.writer import read_commits
 
 SAMPLED_ROWS_PER_SHARD = 8
@@ -119,12 +121,12 @@ def _check_shards(
     progress: Callable[[int, int], None] | None,
 ) -> list[str]:
     problems: list[str] = []
-    num_views, alpha = info.num_views, info.config.alpha
+    num_views, config = info.num_views, info.config
 
     def check(numbered: tuple[int, CommitRecord]) -> list[str]:
         number, record = numbered
         rng = np.random.default_rng([seed, number])  # one stream per shard: threads cannot reorder draws
-        return list(_check_shard(location, record, info.schema_version, num_views, alpha, full, rng, shard_check))
+        return list(_check_shard(location, record, info.schema_version, num_views, config, full, rng, shard_check))
 
     # Shards are checked side by side: a shard costs ~40 small zarr reads whose latency (an event
     # loop round trip locally, a request on an object store) overlaps across threads.
@@ -141,7 +143,7 @@ def _check_shard(
     record: CommitRecord,
     schema_version: int,
     num_views: int,
-    alpha: int,
+    config: GenerationConfig,
     full: bool,
     rng: np.random.Generator,
     shard_check: ShardCheck | None = None,
@@ -153,7 +155,7 @@ def _check_shard(
         yield f"{where}: cannot open shard ({exc.problem})"
         return
     try:
-        yield from _check_open_shard(shard, record, schema_version, num_views, alpha, full, rng, shard_check)
+        yield from _check_open_shard(shard, record, schema_version, num_views, config, full, rng, shard_check)
     except DamagedFile as exc:  # unreadable metadata of an array: the shard's last line
         yield f"{where}: {exc.problem}" if exc.relative == where else f"{exc.relative}: {exc.problem}"
 
@@ -163,7 +165,7 @@ def _check_open_shard(
     record: CommitRecord,
     schema_version: int,
     num_views: int,
-    alpha: int,
+    config: GenerationConfig,
     full: bool,
     rng: np.random.Generator,
     shard_check: ShardCheck | None,
@@ -207,10 +209,16 @@ def _check_open_shard(
     for row in np.flatnonzero(overlap):
         yield f"{where} row {row}: label shares views with the input case"
     rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
-    full_masks = _full_masks(arrays, num_views, alpha)
-    yield from _check_coverage(where, masks, full_masks, rows)
+    full_masks = _full_masks(arrays, num_views, config.alpha)
+    if config.label_objective == "cover":
+        yield from _check_coverage(where, masks, full_masks, rows)
+        ties_problem: TiesProblem = _covers_problem
+    else:
+        judge = VisibilityJudge(_task_sets(arrays, "visible", num_views), config)
+        yield from _check_visibility(where, masks, judge, rows)
+        ties_problem = judge.ties_problem
     if schema_version >= 2:
-        yield from _check_covers(where, arrays, count, full_masks, rows)
+        yield from _check_covers(where, arrays, count, full_masks, rows, ties_problem)
     if shard_check is not None:
         shard_check(record, shard)
 
@@ -261,17 +269,15 @@ def _packed(keys: npt.NDArray[np.int16]) -> npt.NDArray[np.int64]:
     return (k[:, 0] << 32) | (k[:, 1] << 16) | k[:, 2]
 
 
+def _task_sets(arrays: dict[str, npt.NDArray[Any]], name: str, num_views: int) -> list[npt.NDArray[np.int64]]:
+    """A per-view key set family of the task (``visible`` or ``refined``) as packed keys."""
+    keys, offsets = arrays[keys_array(name)], arrays[offsets_array(name)]
+    return [_packed(keys[offsets[v] : offsets[v + 1]]) for v in range(num_views)]
+
+
 def _full_masks(arrays: dict[str, npt.NDArray[Any]], num_views: int, alpha: int) -> npt.NDArray[np.uint64]:
     """P_full's masks recomputed from the stored P_i: each key's views, kept when at least alpha."""
-    keys, offsets = arrays[keys_array("refined")], arrays[offsets_array("refined")]
-    per_view = [_packed(keys[offsets[v] : offsets[v + 1]]) for v in range(num_views)]
-    if not per_view or sum(len(p) for p in per_view) == 0:
-        return np.empty(0, dtype=np.uint64)
-    everything = np.concatenate(per_view)
-    views = np.repeat(np.arange(num_views, dtype=np.uint64), [len(p) for p in per_view])
-    universe_keys, inverse = np.unique(everything, return_inverse=True)
-    key_masks = np.zeros(universe_keys.size, dtype=np.uint64)
-    np.bitwise_or.at(key_masks, inverse, np.uint64(1) << views)
+    key_masks = key_view_masks(_task_sets(arrays, "refined", num_views))
     return key_masks[np.bitwise_count(key_masks) >= alpha]
 
 
@@ -287,16 +293,32 @@ def _check_coverage(
             yield f"{where} row {row}: label leaves {uncovered} keys of U uncovered"
 
 
+def _check_visibility(
+    where: str, masks: npt.NDArray[np.uint64], judge: VisibilityJudge, rows: npt.NDArray[np.int64]
+) -> Iterator[str]:
+    """A visibility objective's labels keep its promise (budget, share of the reference reached)."""
+    for row in rows.tolist():
+        problem = judge.label_problem(int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN]))
+        if problem:
+            yield f"{where} row {row}: {problem}"
+
+
+TiesProblem = Callable[[npt.NDArray[np.uint64], int, int, npt.NDArray[np.uint64]], str | None]
+"""(listed covers, case, label, the case's set-cover rows) -> what is wrong with the listed covers."""
+
+
 def _check_covers(
     where: str,
     arrays: dict[str, npt.NDArray[Any]],
     count: int,
     full_masks: npt.NDArray[np.uint64],
     rows: npt.NDArray[np.int64],
+    ties_problem: TiesProblem,
 ) -> Iterator[str]:
-    """Version 2: the cover rows are P_full's undominated masks, and each checked row lists
-    distinct covers of U, sorted, all of the label's size, the label among them. (That they are
-    minimum and all of them needs a solver: `datagen shards validate --all`.)"""
+    """Version 2: the cover rows are P_full's undominated masks, and each checked row lists the sets as
+    good as its label (for the paper's objective: distinct covers of U, sorted, all of the label's
+    size, the label among them). That they are the best and all of them needs a solver: `datagen shards
+    validate --all`."""
     cover_rows, covers, offsets = arrays[COVER_ROWS], arrays[COVERS], arrays[offsets_array(COVERS)]
     for name, array in ((COVER_ROWS, cover_rows), (COVERS, covers)):
         if array.dtype != MASK_DTYPE or array.ndim != 1:
@@ -316,7 +338,7 @@ def _check_covers(
     for row in rows.tolist():
         case, label = int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN])
         listed = covers[offsets[row] : offsets[row + 1]]
-        problem = _covers_problem(listed, case, label, universe_rows(cover_rows, case))
+        problem = ties_problem(listed, case, label, universe_rows(cover_rows, case))
         if problem:
             yield f"{where} row {row}: {problem}"
 

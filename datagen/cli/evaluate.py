@@ -14,7 +14,7 @@ from typing import Annotated
 
 import typer
 
-from datagen.cli.common import ConfigOption, error_console, progress_bar, say, user_errors
+from datagen.cli.common import ConfigOption, dataset_options, error_console, progress_bar, say, user_errors
 from datagen.config_io import load_config
 from datagen.errors import InvalidArgument
 from schemas.planning import PLANNER_ENTRY_POINTS
@@ -37,9 +37,11 @@ def evaluate(
             "--planner",
             "-p",
             help=(
-                "oracle, greedy, greedy:K, random, random:K, random:match=PLANNER (as many views as PLANNER, "
-                "run by run), all, or NAME:ARG / NAME+DECODING:ARG of a planner plugin (entry point group "
-                f"{PLANNER_ENTRY_POINTS}, e.g. osvp:CHECKPOINT; installed: {_installed_plugins()}); "
+                "oracle, oracle:SETTING=V[,..] (label settings alpha, objective, budget, tau), greedy, "
+                "greedy:K, random, random:K, fixed, fixed:K (the best constant views of --fixed-from), spread, "
+                "spread:K (views far apart, no data), KIND:match=PLANNER (random, fixed or spread with as many "
+                "views as PLANNER, run by run), all, or NAME:ARG / NAME+DECODING:ARG of a planner plugin (entry "
+                f"point group {PLANNER_ENTRY_POINTS}, e.g. osvp:CHECKPOINT; installed: {_installed_plugins()}); "
                 "repeat for several."
             ),
         ),
@@ -66,26 +68,55 @@ def evaluate(
         typer.Option("--png", help="Coverage against movement budget per planner; one picture per object beside it."),
     ] = None,
     workers: Annotated[int, typer.Option("--workers", "-w", help="Objects evaluated side by side.")] = 0,
+    fixed_from: Annotated[
+        str | None,
+        typer.Option(
+            "--fixed-from",
+            help=(
+                "A training dataset (path or URL) to choose the best fixed view sets from: the fixed planners, "
+                "and every planner's lift over the constant plan at equal views."
+            ),
+        ),
+    ] = None,
+    tau: Annotated[
+        float | None,
+        typer.Option("--tau", help="Also report the views each planner needs to see this share (0-1) of the surface."),
+    ] = None,
 ) -> None:
     """Simulate the one-shot pipeline on each object and report coverage, views and movement per planner."""
     from datagen.evaluate.episode import Budget
+    from datagen.evaluate.planners import PlannerContext
     from datagen.evaluate.report import markdown_table, per_object_rows, summarise
     from datagen.evaluate.run import EvaluationSpec, ObjectOutcome, check_planners, evaluate, parse_selection
 
-    with user_errors():
+    with user_errors(fixed_from):
         resolved = load_config(config)
         if budget_views is not None and budget_views < 1:
             raise InvalidArgument(f"--budget-views {budget_views}: give at least 1 (the initial view counts)")
         if budget_moves is not None and not budget_moves > 0:
             raise InvalidArgument(f"--budget-moves {budget_moves}: give a positive number of metres")
-        check_planners(planner)
+        if tau is not None and not 0 < tau <= 1:
+            raise InvalidArgument(f"--tau {tau}: give a share of the surface in (0, 1]")
+        chosen_views = parse_selection(initial_views, resolved.num_views, "--initial-views")
+        fixed = None
+        if fixed_from is None:
+            check_planners(planner, PlannerContext(resolved))  # a fixed planner: one line naming --fixed-from
+        else:
+            from datagen.evaluate.fixed import fixed_plans
+
+            fixed = fixed_plans(fixed_from, chosen_views, dataset_options(fixed_from))
+            check_planners(planner, PlannerContext(resolved, fixed))
+            if not as_json:
+                for line in fixed.summary():
+                    say(line)
         spec = EvaluationSpec(
             planners=tuple(planner),
             refiners=tuple(refiner or [resolved.refiner]),
             rotations=parse_selection(rotations, resolved.rotations, "--rotations"),
-            initial_views=parse_selection(initial_views, resolved.num_views, "--initial-views"),
+            initial_views=chosen_views,
             budget=Budget(views=budget_views, metres=budget_moves),
             pictures=png,
+            fixed=fixed,
         )
         started = time.perf_counter()
         with progress_bar(remaining=True) as bar:
@@ -100,7 +131,7 @@ def evaluate(
         for failure in result.failures:
             error_console.print(f"error: {failure}", markup=False, highlight=False, soft_wrap=True)
         episodes = result.episodes
-        rows = summarise(episodes)
+        rows = summarise(episodes, tau)
         if png is not None and episodes:
             from datagen.evaluate.figures import draw_budget_curves
 
@@ -110,8 +141,10 @@ def evaluate(
                 json.dumps(
                     {
                         "config_hash": resolved.config_hash(),
+                        "fixed": None if fixed is None else fixed.as_dict(),
+                        "tau": tau,
                         "rows": [row.as_dict() for row in rows],
-                        "per_object": [row.as_dict() for row in per_object_rows(episodes)],
+                        "per_object": [row.as_dict() for row in per_object_rows(episodes, tau)],
                         "runs": [episode.as_dict() for episode in episodes],
                         "failures": result.all_failures,
                     },
@@ -122,7 +155,7 @@ def evaluate(
             say(markdown_table(rows))
             if per_object:
                 say("")
-                say(markdown_table(per_object_rows(episodes)))
+                say(markdown_table(per_object_rows(episodes, tau)))
             refine: dict[str, list[float]] = {}
             for outcome in result.outcomes:
                 for name, times in outcome.refine_seconds.items():

@@ -102,8 +102,23 @@ def relabel(
         str | None,
         typer.Option("--tie-break", help="Which minimum cover is the label: 'index' or 'coverage' (config docs)."),
     ] = None,
+    objective: Annotated[
+        str | None,
+        typer.Option(
+            "--objective",
+            help="What a label is: 'cover' (the paper's), 'max_coverage' (--budget) or 'partial_cover' (--tau).",
+        ),
+    ] = None,
+    budget: Annotated[
+        int | None, typer.Option("--budget", min=1, help="max_coverage: most views a label holds beyond the input.")
+    ] = None,
+    tau: Annotated[
+        float | None,
+        typer.Option("--tau", help="partial_cover: share of what all views see that input and label must see."),
+    ] = None,
 ) -> None:
-    """A new dataset: the same samples labelled for another alpha or tie-break from the stored sets (no re-imaging)."""
+    """A new dataset: the same samples labelled for another alpha, tie-break or objective from the stored sets (no
+    re-imaging)."""
     from datagen.engine.relabel import RelabelProgress, relabel_dataset
 
     with user_errors(url):
@@ -114,10 +129,21 @@ def relabel(
                 bar.update(task, completed=state.tasks_done, total=state.tasks_total)
 
             options = dataset_options(url) or dataset_options(out)
-            summary = relabel_dataset(url, alpha, out, storage_options=options, progress=advance, tie_break=tie_break)
+            summary = relabel_dataset(
+                url,
+                alpha,
+                out,
+                storage_options=options,
+                progress=advance,
+                tie_break=tie_break,
+                objective=objective,
+                budget=budget,
+                tau=tau,
+            )
         say(
-            f"relabelled {summary.samples} samples of {summary.tasks} tasks for alpha {summary.alpha}, tie-break "
-            f"{summary.tie_break} (source: alpha {summary.source_alpha}, tie-break {summary.source_tie_break})"
+            f"relabelled {summary.samples} samples of {summary.tasks} tasks for {summary.objective}, alpha "
+            f"{summary.alpha}, tie-break {summary.tie_break} (source: {summary.source_objective}, alpha "
+            f"{summary.source_alpha}, tie-break {summary.source_tie_break})"
         )
         say(f"{summary.seconds:.1f} s, {summary.labels_per_second:.1f} labels/s")
         if summary.dropped_empty or summary.failed_cases:

@@ -1,4 +1,5 @@
-"""Relabel a dataset for another alpha or label tie-break from its stored sets (docs/pipeline.md section 8).
+"""Relabel a dataset for another alpha, tie-break or label objective from its stored sets (docs/pipeline.md
+section 8).
 
 A shard keeps each view's P_i, so P_full, the coverage and every label of its stored cases can be
 computed again without imaging or refining anything: the samples' points and observed sets are
@@ -27,7 +28,7 @@ from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.setcover import TIE_BREAKS
 from datagen.pipeline.task import TaskResult, TaskSets, label_task, labelled_samples
-from schemas.config import GenerationConfig, MissingConfigFile
+from schemas.config import LABEL_OBJECTIVES, OBJECTIVE_FIELDS, GenerationConfig, MissingConfigFile
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import GT_KEYS, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
@@ -70,6 +71,9 @@ class RelabelSummary:
     alpha: int
     source_tie_break: str
     tie_break: str
+    source_objective: str
+    objective: str
+    """The label objective with its parameter, e.g. ``max_coverage (budget 2)``."""
     source_config_hash: str
     config_hash: str
     tasks: int
@@ -94,15 +98,24 @@ def relabel_dataset(
     storage_options: dict[str, Any] | None = None,
     progress: Callable[[RelabelProgress], None] | None = None,
     tie_break: str | None = None,
+    objective: str | None = None,
+    budget: int | None = None,
+    tau: float | None = None,
 ) -> RelabelSummary:
-    """Write a new dataset at ``out_url`` labelling every committed task of ``url`` for ``alpha``
-    and ``tie_break`` (None keeps the source's)."""
+    """Write a new dataset at ``out_url`` labelling every committed task of ``url`` for ``alpha``,
+    ``tie_break`` and the label ``objective`` with its ``budget`` or ``tau`` (None keeps the source's)."""
     started = time.perf_counter()
     source = open_location(url, storage_options)
     check_store(source)
     info = read_info(source)
     alpha = info.config.alpha if alpha is None else alpha
-    config = _with_labels(info.config, alpha, tie_break or info.config.label_tie_break)
+    changes = {"label_objective": objective, "label_budget": budget, "label_tau": tau}
+    config = _with_labels(
+        info.config,
+        alpha,
+        tie_break or info.config.label_tie_break,
+        {k: v for k, v in changes.items() if v is not None},
+    )
     target = open_location(out_url, storage_options)
     check_store(target)
     _refuse_existing(target)
@@ -136,6 +149,8 @@ def relabel_dataset(
         alpha=alpha,
         source_tie_break=info.config.label_tie_break,
         tie_break=config.label_tie_break,
+        source_objective=objective_text(info.config),
+        objective=objective_text(config),
         source_config_hash=info.config_hash,
         config_hash=new_info.config_hash,
         tasks=len(records),
@@ -207,18 +222,44 @@ def _key_sets(shard: ShardReader, name: str, count: int) -> list[npt.NDArray[np.
     return [packed[offsets[i] : offsets[i + 1]] for i in range(count)]
 
 
-def _with_labels(config: GenerationConfig, alpha: int, tie_break: str) -> GenerationConfig:
+OPTION_OF_FIELD = {
+    "alpha": "--alpha",
+    "label_tie_break": "--tie-break",
+    "label_objective": "--objective",
+    "label_budget": "--budget",
+    "label_tau": "--tau",
+}
+
+
+def objective_text(config: GenerationConfig) -> str:
+    """The label objective with the parameter it reads: ``cover``, ``max_coverage (budget 3)``, ..."""
+    parameters = {"label_budget": "budget", "label_tau": "tau"}
+    used = [f"{parameters[name]} {getattr(config, name)}" for name in OBJECTIVE_FIELDS[config.label_objective]]
+    return config.label_objective + (f" ({', '.join(used)})" if used else "")
+
+
+def _with_labels(
+    config: GenerationConfig, alpha: int, tie_break: str, changes: dict[str, object] | None = None
+) -> GenerationConfig:
     if not 1 <= alpha <= config.num_views:
         raise ConfigError(
             f"--alpha {alpha} is outside 1..{config.num_views} (the dataset has {config.num_views} views)"
         )
     if tie_break not in TIE_BREAKS:
         raise ConfigError(f"--tie-break {tie_break!r} is not one of {', '.join(TIE_BREAKS)}")
+    objective = (changes or {}).get("label_objective")
+    if objective is not None and objective not in LABEL_OBJECTIVES:
+        raise ConfigError(f"--objective {objective!r} is not one of {', '.join(LABEL_OBJECTIVES)}")
+    update = {"alpha": alpha, "label_tie_break": tie_break, **(changes or {})}
     try:
-        return GenerationConfig.model_validate({**config.model_dump(), "alpha": alpha, "label_tie_break": tie_break})
+        return GenerationConfig.model_validate({**config.model_dump(), **update})
     except ValidationError as exc:
         first = exc.errors()[0]
-        raise ConfigError(f"--alpha {alpha}: {first['msg']}") from None
+        if not first["loc"]:  # a rule between fields: its message names them
+            raise ConfigError(str(first["msg"]).removeprefix("Value error, ")) from None
+        field = str(first["loc"][0])
+        option = OPTION_OF_FIELD.get(field, "--alpha")
+        raise ConfigError(f"{option} {update.get(field, alpha)}: {first['msg']}") from None
 
 
 def _config_hash(config: GenerationConfig) -> str:

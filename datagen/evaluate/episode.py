@@ -9,14 +9,17 @@ exceed it is not made).
 Figures (docs/authors-code.md section 8): coverage = distinct observed keys / keys visible from
 all candidate views (the authors' reference count); ``coverage_gt`` = the same over every key of P_gt;
 required views counts the initial view; coverage per view and per metre are the paper's efficiency
-columns (percent per view, percent per metre). A planner with a matched random in the run
-(``random:match=SPEC``) also carries that random's coverage in the same situation: its lift over chance at
-equal views.
+columns (percent per view, percent per metre). A planner that looks at the object also carries the
+coverage of random views and of the best fixed set at its own view count in the same situation: its lifts
+over chance and over the constant plan at equal views. Where the planner can answer for any view count
+(`Plan.at_count`), the run keeps its coverage at every count (``count_curve``): how many views it
+needs to reach a share (`views_to`).
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 import time
 from dataclasses import dataclass
 
@@ -79,7 +82,13 @@ class Episode:
     """Refining the input view (`Situation.input_seconds`); 0 for planners that read no input."""
     chamfer_mm: float
     matched_random_coverage: float | None = None
-    """Coverage (fraction) of the run's matched random planner in the same situation, when it has one."""
+    """Coverage (fraction) of random views at this run's view count in the same situation (None for the
+    baselines themselves)."""
+    matched_fixed_coverage: float | None = None
+    """Coverage (fraction) of the best fixed set at this run's view count (None without fixed plans)."""
+    count_curve: tuple[float, ...] | None = None
+    """Coverage (fraction) of the initial view plus the planner's answer for c new views, c = 0..n-1, where
+    the planner answers for any count (None otherwise); no budget applies."""
 
     @property
     def coverage(self) -> float:
@@ -95,6 +104,21 @@ class Episode:
         if self.matched_random_coverage is None:
             return float("nan")
         return 100.0 * (self.coverage - self.matched_random_coverage)
+
+    @property
+    def lift_fixed(self) -> float:
+        """Coverage points above the best fixed set at equal views in the same situation (NaN without one)."""
+        if self.matched_fixed_coverage is None:
+            return float("nan")
+        return 100.0 * (self.coverage - self.matched_fixed_coverage)
+
+    def views_to(self, share: float) -> float:
+        """Views (the initial one included) the planner needs to see ``share`` of the reference, from its
+        answers at every count; NaN where it cannot say."""
+        if self.count_curve is None:
+            return float("nan")
+        reached = [c for c, coverage in enumerate(self.count_curve) if coverage >= share - 1e-12]
+        return float(reached[0] + 1) if reached else float("nan")
 
     @property
     def views(self) -> int:
@@ -125,17 +149,22 @@ class Episode:
         data.update(coverage_curve=[round(c, 6) for c in self.coverage_curve])
         data.update(reference_size=self.reference_size, ground_truth_size=self.ground_truth_size)
         data.update(observed_size=self.observed_size)
-        matched = self.matched_random_coverage
-        data.update(matched_random_coverage=None if matched is None else round(100.0 * matched, 6))
+        for name in ("matched_random_coverage", "matched_fixed_coverage"):
+            matched = getattr(self, name)
+            data[name] = None if matched is None else round(100.0 * matched, 6)
+        curve = self.count_curve
+        data.update(count_curve=None if curve is None else [round(c, 6) for c in curve])
         data.update({k: (None if v != v else round(v, 6)) for k, v in self.figures().items()})
         return data
 
-    def figures(self) -> dict[str, float]:
-        """The per-run numbers the tables average."""
+    def figures(self, tau: float | None = None) -> dict[str, float]:
+        """The per-run numbers the tables average (``tau``: also the views needed to see that share)."""
         return {
+            "views_to_tau": self.views_to(tau) if tau is not None else float("nan"),
             "coverage": 100.0 * self.coverage,
             "coverage_gt": 100.0 * self.coverage_gt,
             "lift": self.lift,
+            "lift_fixed": self.lift_fixed,
             "views": float(self.views),
             "movement": self.movement,
             "coverage_per_view": self.coverage_per_view,
@@ -146,8 +175,9 @@ class Episode:
         }
 
 
-def run_episode(planner: Planner, situation: Situation, budget: Budget = Budget()) -> Episode:
-    """Plan, order, visit and measure one run."""
+def run_episode(planner: Planner, situation: Situation, budget: Budget = Budget(), measure: bool = True) -> Episode:
+    """Plan, order, visit and measure one run (``measure=False``: coverage only, no Chamfer distance and no
+    coverage by view count, for the baselines a run is compared with)."""
     if planner.uses_refinement:
         situation.prepare()
     started = time.perf_counter()
@@ -178,8 +208,20 @@ def run_episode(planner: Planner, situation: Situation, budget: Budget = Budget(
         exact_path=exact,
         planning_seconds=planning,
         input_seconds=situation.input_seconds if planner.uses_refinement else 0.0,
-        chamfer_mm=chamfer_mm(scene.observed_points(order), scene.scan.ground_truth.points),
+        chamfer_mm=chamfer_mm(scene.observed_points(order), scene.scan.ground_truth.points) if measure else math.nan,
+        count_curve=_count_curve(scene, situation.initial_view, plan) if measure else None,
     )
+
+
+def _count_curve(scene: Scene, initial: int, plan: Plan) -> tuple[float, ...] | None:
+    """Coverage of the initial view plus the plan's answer for c new views, for every c (no budget)."""
+    if plan.at_count is None or not scene.reference.size:
+        return None
+    curve = []
+    for count in range(scene.num_views):
+        views = [initial, *plan.at_count(count)]
+        curve.append(float(np.count_nonzero(scene.seen(views))) / scene.reference.size)
+    return tuple(curve)
 
 
 def chamfer_mm(observed: npt.ArrayLike, truth: npt.ArrayLike) -> float:

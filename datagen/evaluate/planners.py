@@ -7,12 +7,19 @@ out) wrapped by `ScoredPlanner`, which keeps the views above 0.5 as the paper do
 probabilities into views its own way (a named decoding). Baselines:
 
 - ``oracle``: the generator's exact label for this very case, what a perfect network trained on the
-  dataset would predict;
+  dataset would predict; ``oracle:SETTING=V[,...]`` labels under other label settings (``alpha``,
+  ``objective``, ``budget`` for max_coverage, ``tau`` for partial_cover: docs/pipeline.md section 7.5),
+  so one evaluation compares label objectives;
 - ``greedy`` / ``greedy:K``: next-best view by true new surface, one view at a time, until no view
   adds surface (or K views in all, the initial one included): the search-based NBV bound;
 - ``random`` / ``random:K``: seeded uniform views, as many as the oracle's (or K in all);
-- ``random:match=SPEC``: seeded uniform views, as many as planner SPEC of the same run chose in the same
-  situation, so a trained planner is judged against chance at equal views (`match_planners`);
+- ``fixed`` / ``fixed:K``: the best constant view set of that size, chosen once from a training
+  dataset (``--fixed-from``, `datagen.evaluate.fixed`): the floor a planner that looks at the object
+  must beat;
+- ``spread`` / ``spread:K``: views spread far apart from the initial one, needing no data;
+- ``random:match=SPEC``, ``fixed:match=SPEC``, ``spread:match=SPEC``: that baseline with as many views as
+  planner SPEC of the same run chose in the same situation (`match_planners`). Every other planner's
+  runs also carry random's and fixed's coverage at their own view count (their lifts);
 - ``all``: every candidate view.
 
 Any other ``NAME:ARG`` is a planner plugin: the `schemas.planning.ScorerFactory` an installed distribution
@@ -24,25 +31,46 @@ scorer's decoding DECODE instead of its default. The `osvp` training package is 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from importlib.metadata import EntryPoint, entry_points
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
+from pydantic import ValidationError
 
 from datagen.errors import DatagenError, PlannerError
-from datagen.evaluate.situation import Situation
+from datagen.evaluate.fixed import FIXED_OPTION, FixedPlans, spread_views
+from datagen.evaluate.situation import Situation, needs_refinement
 from datagen.pipeline.setcover import mask_to_views
+from schemas.config import GenerationConfig
 from schemas.planning import PLANNER_ENTRY_POINTS, DecodingScorer, ScorerFactory, ViewScorer
 
 CHOICE_THRESHOLD = 0.5
 """A view is chosen when its probability exceeds this (the paper's rule)."""
 
-BUILTIN_PLANNERS = ("oracle", "greedy", "random", "all")
+BUILTIN_PLANNERS = ("oracle", "greedy", "random", "fixed", "spread", "all")
 """Names a plugin cannot take: ``NAME:ARG`` with one of these is never looked up among the entry points."""
-BUILTIN_HELP = "oracle, greedy, greedy:K, random, random:K, random:match=PLANNER, all"
+BUILTIN_HELP = (
+    "oracle, oracle:SETTING=V (alpha, objective, budget, tau), greedy, greedy:K, random, random:K, "
+    "random:match=PLANNER, fixed, fixed:K, fixed:match=PLANNER (with --fixed-from), spread, spread:K, "
+    "spread:match=PLANNER, all"
+)
+ORACLE_SETTINGS = {"alpha": "alpha", "objective": "label_objective", "budget": "label_budget", "tau": "label_tau"}
+"""``oracle:SETTING=V``: the label setting each name changes."""
+SETTING_TYPES: dict[str, type] = {"alpha": int, "budget": int, "tau": float}
+OBJECTIVE_OF_SETTING = {"budget": "max_coverage", "tau": "partial_cover", "alpha": "cover"}
+"""The objective a setting implies when ``objective`` is not named."""
+
+
+@dataclass(frozen=True)
+class PlannerContext:
+    """What building a planner may need besides its spec: the evaluation's config (the oracle's label
+    settings) and the fixed plans chosen from a training dataset (``--fixed-from``)."""
+
+    config: GenerationConfig = field(default_factory=GenerationConfig)
+    fixed: FixedPlans | None = None
 
 
 def installed_plugins() -> dict[str, EntryPoint]:
@@ -76,6 +104,9 @@ class Plan:
     ordered: bool = False
     """True: visit in this order; False: a one-shot set, ordered by the shortest open path."""
     probabilities: npt.NDArray[np.float64] | None = None
+    at_count: Callable[[int], tuple[int, ...]] | None = field(default=None, compare=False)
+    """The planner's answer had it been asked for exactly c new views (None: it only answers its own
+    count): gives each run its coverage at every view count, and the views it needs to reach a share."""
 
 
 class Planner(Protocol):
@@ -87,11 +118,54 @@ class Planner(Protocol):
 
 
 class OraclePlanner:
-    name = "oracle"
-    uses_refinement = True
+    """The generator's label for the case, under the evaluation's label settings or ``changes`` to them."""
+
+    def __init__(self, config: GenerationConfig | None = None, changes: dict[str, object] | None = None) -> None:
+        self.changes = dict(changes or {})
+        self.config = oracle_config(config or GenerationConfig(), self.changes)
+        self.name = "oracle" + (":" + ",".join(f"{k}={v}" for k, v in self.changes.items()) if self.changes else "")
+        self.uses_refinement = needs_refinement(self.config)
+        self._configs: dict[int, GenerationConfig] = {}
 
     def plan(self, situation: Situation) -> Plan:
-        return Plan(views=mask_to_views(situation.oracle_label().label))
+        config = situation.config
+        if self.changes:  # the scene's config may be another than the one the planner was built with
+            if id(config) not in self._configs:
+                self._configs[id(config)] = oracle_config(config, self.changes)
+            config = self._configs[id(config)]
+        return Plan(views=mask_to_views(situation.oracle_label(config).label))
+
+
+def oracle_settings(spec: str, argument: str) -> dict[str, object]:
+    """``alpha=5`` or ``budget=2`` or ``objective=partial_cover,tau=0.95`` as setting -> value."""
+    changes: dict[str, object] = {}
+    for part in argument.split(","):
+        name, equals, value = part.strip().partition("=")
+        if not equals or name not in ORACLE_SETTINGS or not value:
+            choices = ", ".join(f"{n}=V" for n in ORACLE_SETTINGS)
+            raise PlannerError(f"planner {spec!r}: give label settings as {choices}, separated by commas")
+        try:
+            changes[name] = SETTING_TYPES.get(name, str)(value)
+        except ValueError:
+            raise PlannerError(f"planner {spec!r}: {name}={value} is not a {SETTING_TYPES[name].__name__}") from None
+    return changes
+
+
+def oracle_config(config: GenerationConfig, changes: dict[str, object]) -> GenerationConfig:
+    """``config`` with the oracle's label setting changes (a setting implies its objective)."""
+    update = {ORACLE_SETTINGS[name]: value for name, value in changes.items()}
+    if "objective" not in changes:
+        implied = {OBJECTIVE_OF_SETTING[name] for name in changes}
+        if len(implied) == 1:
+            update["label_objective"] = implied.pop()
+    if update.get("label_objective", config.label_objective) != "cover":
+        update["label_tie_break"] = "index"
+    try:
+        return GenerationConfig.model_validate({**config.model_dump(), **update})
+    except ValidationError as exc:
+        first = exc.errors()[0]
+        setting = next((n for n, f in ORACLE_SETTINGS.items() if first["loc"] and f == first["loc"][0]), "oracle")
+        raise PlannerError(f"oracle setting {setting}: {first['msg']}") from None
 
 
 class AllPlanner:
@@ -131,53 +205,8 @@ class GreedyPlanner:
         return Plan(views=tuple(taken[1:]), ordered=True)
 
 
-class RandomPlanner:
-    """Uniform views other than the initial one, from the situation's own seeded stream."""
-
-    def __init__(self, total_views: int | None = None) -> None:
-        self.total_views = total_views
-        self.name = "random" if total_views is None else f"random:{total_views}"
-        self.uses_refinement = total_views is None
-
-    def plan(self, situation: Situation) -> Plan:
-        wanted = self.total_views - 1 if self.total_views is not None else situation.oracle_label().label.bit_count()
-        return Plan(views=random_views(situation, wanted))
-
-
-@dataclass
-class MatchedRandomPlanner:
-    """``random:match=SPEC``: uniform views, exactly as many as planner SPEC chose in the same situation.
-
-    The run evaluates SPEC first and hands its plan's view count over with `taking` (a planner is asked
-    one situation at a time and sees no other planner's answer). What is matched is the number of
-    distinct views SPEC's plan chose, the initial view excluded, before any budget: both runs then meet
-    the same --budget-views/--budget-moves cut afterwards, like every planner, so a budget never decides
-    how many views chance gets. The views come from the situation's own stream (as `RandomPlanner`'s),
-    so they depend neither on worker count nor on planner order; the planner reads the refined input iff
-    SPEC does, so both run under the same refiner label.
-    """
-
-    name: str
-    wanted: str
-    """SPEC as the user gave it: another planner's spec, or a prefix of exactly one."""
-    matched: str | None = None
-    """The full spec of the planner it matches, once `match_planners` has bound it."""
-    uses_refinement: bool = True
-    count: int | None = None
-    """The matched planner's view count in the situation at hand (`taking`)."""
-
-    def matching(self, matched: Planner) -> MatchedRandomPlanner:
-        """This planner bound to the planner it matches."""
-        return replace(self, matched=matched.name, uses_refinement=matched.uses_refinement)
-
-    def taking(self, count: int) -> MatchedRandomPlanner:
-        """This planner for one situation where the matched planner chose ``count`` views."""
-        return replace(self, count=count)
-
-    def plan(self, situation: Situation) -> Plan:
-        if self.count is None:
-            raise ValueError(f"planner {self.name} plans only with the matched planner's view count (`taking`)")
-        return Plan(views=random_views(situation, self.count))
+Chooser = Callable[[Situation, int], tuple[int, ...]]
+"""How a baseline picks ``count`` views other than the initial one in a situation."""
 
 
 def random_views(situation: Situation, count: int) -> tuple[int, ...]:
@@ -185,6 +214,93 @@ def random_views(situation: Situation, count: int) -> tuple[int, ...]:
     others = [v for v in range(situation.scene.num_views) if v != situation.initial_view]
     chosen = situation.rng().choice(len(others), size=min(count, len(others)), replace=False)
     return tuple(sorted(others[i] for i in chosen))
+
+
+def spread_chooser(situation: Situation, count: int) -> tuple[int, ...]:
+    """``count`` views spread far from the initial one and from each other (`fixed.spread_views`)."""
+    return spread_views(situation.scene.positions, situation.initial_view, count)
+
+
+def fixed_chooser(plans: FixedPlans | None, spec: str) -> Chooser:
+    """The training dataset's best constant set of ``count`` views; refused without a dataset to choose from."""
+    if plans is None:
+        raise PlannerError(
+            f"planner {spec!r} plays the best fixed view sets of a training dataset: give {FIXED_OPTION} URL"
+        )
+    return lambda situation, count: plans.plan(count, situation.initial_view).views
+
+
+BASELINES = ("random", "fixed", "spread")
+"""Planners that never look at the object: chance, the best constant plan, a data-free spread."""
+
+
+class BaselinePlanner:
+    """A baseline (`BASELINES`) taking as many views as the oracle (``NAME``) or K in all (``NAME:K``)."""
+
+    def __init__(self, kind: str, choose: Chooser, total_views: int | None = None) -> None:
+        self.kind = kind
+        self.choose = choose
+        self.total_views = total_views
+        self.name = kind if total_views is None else f"{kind}:{total_views}"
+        self.uses_refinement = total_views is None
+
+    def plan(self, situation: Situation) -> Plan:
+        wanted = self.total_views - 1 if self.total_views is not None else situation.oracle_label().label.bit_count()
+        return Plan(views=self.choose(situation, wanted), at_count=lambda c: self.choose(situation, c))
+
+
+class RandomPlanner(BaselinePlanner):
+    """Seeded uniform views other than the initial one, from the situation's own stream."""
+
+    def __init__(self, total_views: int | None = None) -> None:
+        super().__init__("random", random_views, total_views)
+
+
+@dataclass
+class MatchedPlanner:
+    """``KIND:match=SPEC``: a baseline taking exactly as many views as planner SPEC chose in the same situation.
+
+    The run evaluates SPEC first and hands its plan's view count over with `taking` (a planner is asked
+    one situation at a time and sees no other planner's answer). What is matched is the number of
+    distinct views SPEC's plan chose, the initial view excluded, before any budget: both runs then meet
+    the same --budget-views/--budget-moves cut afterwards, like every planner, so a budget never decides
+    how many views the baseline gets. Random views come from the situation's own stream (as
+    `RandomPlanner`'s), so they depend neither on worker count nor on planner order; the planner reads the
+    refined input iff SPEC does, so both run under the same refiner label.
+    """
+
+    name: str
+    wanted: str
+    """SPEC as the user gave it: another planner's spec, or a prefix of exactly one."""
+    choose: Chooser = random_views
+    kind: str = "random"
+    matched: str | None = None
+    """The full spec of the planner it matches, once `match_planners` has bound it."""
+    uses_refinement: bool = True
+    count: int | None = None
+    """The matched planner's view count in the situation at hand (`taking`)."""
+
+    def matching(self, matched: Planner) -> MatchedPlanner:
+        """This planner bound to the planner it matches."""
+        return replace(self, matched=matched.name, uses_refinement=matched.uses_refinement)
+
+    def taking(self, count: int) -> MatchedPlanner:
+        """This planner for one situation where the matched planner chose ``count`` views."""
+        return replace(self, count=count)
+
+    def plan(self, situation: Situation) -> Plan:
+        if self.count is None:
+            raise ValueError(f"planner {self.name} plans only with the matched planner's view count (`taking`)")
+        return Plan(views=self.choose(situation, self.count), at_count=lambda c: self.choose(situation, c))
+
+
+MatchedRandomPlanner = MatchedPlanner
+"""``random:match=SPEC`` (the first matched baseline)."""
+
+
+def is_baseline(planner: Planner) -> bool:
+    """A planner that never looks at the object (chance, fixed, spread, every view): it gets no lift."""
+    return isinstance(planner, BaselinePlanner | MatchedPlanner | AllPlanner)
 
 
 def chosen_count(views: Sequence[int], initial_view: int) -> int:
@@ -211,8 +327,10 @@ class ScoredPlanner:
         probabilities = np.asarray(self.scorer.view_probabilities(cloud, request.view_state), dtype=np.float64)
         self._check_length("probabilities", probabilities, request.num_views)
         take = self._select(probabilities, request.view_state)
-        chosen = np.flatnonzero(take & (np.asarray(request.view_state) == 0))
-        return Plan(views=tuple(int(v) for v in chosen), probabilities=probabilities)
+        open_views = np.asarray(request.view_state) == 0
+        chosen = np.flatnonzero(take & open_views)
+        ranking = tuple(int(v) for v in np.argsort(-probabilities, kind="stable") if open_views[v])
+        return Plan(views=tuple(int(v) for v in chosen), probabilities=probabilities, at_count=lambda c: ranking[:c])
 
     def _select(
         self, probabilities: npt.NDArray[np.float64], view_state: npt.NDArray[np.float32]
@@ -301,26 +419,30 @@ def _one_line(exc: BaseException, named: bool = True) -> str:
     return f"{type(exc).__name__}: {line}" if named or not line else line
 
 
-def make_planner(spec: str) -> Planner:
+def make_planner(spec: str, context: PlannerContext | None = None) -> Planner:
     """The planner a command-line name stands for; `PlannerError` names the choices otherwise.
 
-    A ``random:match=SPEC`` comes back unbound: `match_planners` binds it to a planner of the same run.
+    A ``KIND:match=SPEC`` comes back unbound: `match_planners` binds it to a planner of the same run.
     """
+    context = context or PlannerContext()
     name, colon, argument = spec.partition(":")
     if colon and not argument:
         raise PlannerError(f"planner {spec!r} names nothing after ':'; choose {planner_help()}")
     base, plus, decoding = name.partition("+")
-    if name == "oracle" and not argument:
-        return OraclePlanner()
+    if name == "oracle":
+        return OraclePlanner(context.config, oracle_settings(spec, argument) if argument else None)
     if name == "all" and not argument:
         return AllPlanner()
-    if name == "random" and argument.startswith(MATCH_PREFIX):
-        if argument == MATCH_PREFIX:
-            raise PlannerError(f"planner {spec!r} names no planner after '='; give random:match=PLANNER")
-        return MatchedRandomPlanner(spec, argument.removeprefix(MATCH_PREFIX))
-    if name in ("greedy", "random"):
+    if name in BASELINES:
+        choose = _chooser(name, spec, context)
+        if argument.startswith(MATCH_PREFIX):
+            if argument == MATCH_PREFIX:
+                raise PlannerError(f"planner {spec!r} names no planner after '='; give {name}:match=PLANNER")
+            return MatchedPlanner(spec, argument.removeprefix(MATCH_PREFIX), choose, name)
         total = _view_count(spec, argument) if argument else None
-        return GreedyPlanner(total) if name == "greedy" else RandomPlanner(total)
+        return RandomPlanner(total) if name == "random" else BaselinePlanner(name, choose, total)
+    if name == "greedy":
+        return GreedyPlanner(_view_count(spec, argument) if argument else None)
     if argument and base not in BUILTIN_PLANNERS:
         if plus and not decoding:
             raise PlannerError(f"planner {spec!r} names no decoding after '+'; give {base}+DECODING:{argument}")
@@ -328,16 +450,30 @@ def make_planner(spec: str) -> Planner:
     raise PlannerError(f"unknown planner {spec!r}; choose {planner_help()}")
 
 
+def _chooser(kind: str, spec: str, context: PlannerContext) -> Chooser:
+    if kind == "fixed":
+        return fixed_chooser(context.fixed, spec)
+    return spread_chooser if kind == "spread" else random_views
+
+
+def baseline_at_count(kind: str, context: PlannerContext) -> MatchedPlanner | None:
+    """The unbound matched baseline ``kind`` (random or fixed) that gives every run its lift, None where
+    it cannot be built (fixed without a training dataset)."""
+    if kind == "fixed" and context.fixed is None:
+        return None
+    return MatchedPlanner(f"{kind}:match", "", _chooser(kind, kind, context), kind)
+
+
 def match_planners(planners: Sequence[Planner]) -> list[Planner]:
-    """The planners, in their order, with every ``random:match=SPEC`` bound to the planner SPEC names."""
-    return [p.matching(_matched(p, planners)) if isinstance(p, MatchedRandomPlanner) else p for p in planners]
+    """The planners, in their order, with every ``KIND:match=SPEC`` bound to the planner SPEC names."""
+    return [p.matching(_matched(p, planners)) if isinstance(p, MatchedPlanner) else p for p in planners]
 
 
-def _matched(planner: MatchedRandomPlanner, planners: Sequence[Planner]) -> Planner:
+def _matched(planner: MatchedPlanner, planners: Sequence[Planner]) -> Planner:
     """The one planner SPEC names, exactly or as the prefix of a single spec; otherwise one error line naming
-    the choices (a matched random matches neither itself nor another matched random: their counts are
+    the choices (a matched baseline matches neither itself nor another matched baseline: their counts are
     borrowed, not chosen)."""
-    choices = {p.name: p for p in planners if not isinstance(p, MatchedRandomPlanner)}
+    choices = {p.name: p for p in planners if not isinstance(p, MatchedPlanner)}
     names = sorted(choices)
     listed = ", ".join(names) if names else "none: add the planner to match"
     found = [n for n in names if n == planner.wanted] or [n for n in names if n.startswith(planner.wanted)]
@@ -345,8 +481,8 @@ def _matched(planner: MatchedRandomPlanner, planners: Sequence[Planner]) -> Plan
         return choices[found[0]]
     if found:
         problem = f"{planner.wanted!r} is the start of {len(found)} planners; give one in full"
-    elif any(isinstance(p, MatchedRandomPlanner) and p.name.startswith(planner.wanted) for p in planners):
-        problem = "a matched random cannot match itself or another random:match planner"
+    elif any(isinstance(p, MatchedPlanner) and p.name.startswith(planner.wanted) for p in planners):
+        problem = "a matched baseline cannot match itself or another :match planner"
     else:
         problem = f"{planner.wanted!r} names no other planner of this run"
     raise PlannerError(f"planner {planner.name!r}: {problem}; choose one of {listed}")

@@ -2,8 +2,9 @@
 
 Each object's figures are first averaged over its runs (rotations x initial views), then the table gives
 the mean and the population standard deviation of those per-object means. Rows keep the order in which
-refiners and planners were asked for. The lift (coverage points above the matched random at equal views)
-is averaged the same way over the runs that have one; a table shows its column only when some row has it.
+refiners and planners were asked for. The lifts (coverage points above random views and above the best
+fixed set at equal views) and the views needed to reach a share are averaged the same way over the runs
+that have them; a table shows such a column only when some row has it.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from datagen.evaluate.episode import Episode
 
 FIGURES: tuple[tuple[str, str, int], ...] = (
     ("coverage", "coverage %", 2),
-    ("lift", "lift %", 2),
+    ("lift", "lift vs random %", 2),
+    ("lift_fixed", "lift vs fixed %", 2),
     ("coverage_gt", "of P_gt %", 2),
     ("views", "views", 2),
     ("movement", "movement m", 2),
@@ -28,10 +30,11 @@ FIGURES: tuple[tuple[str, str, int], ...] = (
     ("chamfer_mm", "Chamfer mm", 2),
     ("planning_seconds", "plan s", 3),
     ("input_seconds", "input s", 2),
+    ("views_to_tau", "views to tau", 2),
 )
 """(key of `Episode.figures`, column heading, decimals)."""
-OPTIONAL_FIGURES = frozenset({"lift"})
-"""Columns left out of a table where no row has a value (no planner of the run has a matched random)."""
+OPTIONAL_FIGURES = frozenset({"lift", "lift_fixed", "views_to_tau"})
+"""Columns left out of a table where no row has a value (no lifts, no fixed plans, no share asked for)."""
 
 K = TypeVar("K", bound=Hashable)
 
@@ -65,11 +68,12 @@ class Row:
         return data
 
 
-def summarise(episodes: Sequence[Episode]) -> list[Row]:
-    """One row per (refiner, planner): per-object means, then mean and std over objects."""
+def summarise(episodes: Sequence[Episode], tau: float | None = None) -> list[Row]:
+    """One row per (refiner, planner): per-object means, then mean and std over objects (``tau``: with the
+    views each planner needs to see that share, where it can say)."""
     rows = []
     for (refiner, planner), group in _groups(episodes, lambda e: (e.refiner, e.planner)).items():
-        per_object = [_means(runs) for runs in _groups(group, lambda e: e.object_id).values()]
+        per_object = [_means(runs, tau) for runs in _groups(group, lambda e: e.object_id).values()]
         rows.append(
             Row(
                 refiner=refiner,
@@ -84,11 +88,11 @@ def summarise(episodes: Sequence[Episode]) -> list[Row]:
     return rows
 
 
-def per_object_rows(episodes: Sequence[Episode]) -> list[Row]:
+def per_object_rows(episodes: Sequence[Episode], tau: float | None = None) -> list[Row]:
     """One row per (object, refiner, planner): mean and std over that object's runs."""
     rows = []
     for (_, refiner, planner), group in _groups(episodes, lambda e: (e.object_id, e.refiner, e.planner)).items():
-        figures = [e.figures() for e in group]
+        figures = [e.figures(tau) for e in group]
         rows.append(
             Row(
                 refiner=refiner,
@@ -132,8 +136,8 @@ def _groups(episodes: Sequence[Episode], key: Callable[[Episode], K]) -> dict[K,
     return groups
 
 
-def _means(runs: Sequence[Episode]) -> dict[str, float]:
-    figures = [e.figures() for e in runs]
+def _means(runs: Sequence[Episode], tau: float | None = None) -> dict[str, float]:
+    figures = [e.figures(tau) for e in runs]
     return {k: _nanmean([f[k] for f in figures]) for k, _, _ in FIGURES}
 
 

@@ -2,12 +2,13 @@
 
 Each object is imaged once per rotation and refined once per refiner; every planner then answers the
 same situations. Planners that read neither the refined input nor the generator's label (greedy, all,
-random:K) run once per situation, under the refiner label "-". A ``random:match=SPEC`` runs after the
-planner it matches (whatever the order given), takes as many views as that planner chose there, and
-gives the planner's run its lift; output keeps the order given. Objects run side by side in worker
-processes (``workers``); the result does not depend on how many (every random draw has its own stream
-and torch is held to one thread per worker). An object that cannot be prepared, or a case the solver
-cannot label, becomes a failure line and the rest goes on.
+random:K) run once per situation, under the refiner label "-". A ``KIND:match=SPEC`` runs after the
+planner it matches (whatever the order given) and takes as many views as that planner chose there;
+output keeps the order given. Every planner that looks at the object also gets, run by run, the
+coverage of random views and of the best fixed set (``--fixed-from``) at its own view count: its lifts.
+Objects run side by side in worker processes (``workers``); the result does not depend on how many
+(every random draw has its own stream and torch is held to one thread per worker). An object that
+cannot be prepared, or a case the solver cannot label, becomes a failure line and the rest goes on.
 """
 
 from __future__ import annotations
@@ -20,7 +21,17 @@ from pathlib import Path
 
 from datagen.errors import ConfigError, DatagenError, InvalidArgument
 from datagen.evaluate.episode import Budget, Episode, run_episode
-from datagen.evaluate.planners import MatchedRandomPlanner, Planner, chosen_count, make_planner, match_planners
+from datagen.evaluate.fixed import FixedPlans
+from datagen.evaluate.planners import (
+    MatchedPlanner,
+    Planner,
+    PlannerContext,
+    baseline_at_count,
+    chosen_count,
+    is_baseline,
+    make_planner,
+    match_planners,
+)
 from datagen.evaluate.scene import Scene, build_scene
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.objects.objects_file import read_objects_file
@@ -46,6 +57,9 @@ class EvaluationSpec:
     budget: Budget = field(default_factory=Budget)
     pictures: Path | None = None
     """Write one picture per object (first rotation and initial view) as ``<stem>-<NN>-<name>.png`` here."""
+    fixed: FixedPlans | None = None
+    """The best fixed view sets of a training dataset (``--fixed-from``): the ``fixed`` planners and every
+    planner's lift over them."""
 
 
 @dataclass
@@ -101,11 +115,16 @@ def refiner_config(config: GenerationConfig, refiner: str) -> GenerationConfig:
     return GenerationConfig.model_validate({**config.model_dump(), "refiner": refiner})
 
 
-def check_planners(names: Sequence[str]) -> list[Planner]:
+def check_planners(names: Sequence[str], context: PlannerContext | None = None) -> list[Planner]:
     """Build every planner once up front, so a bad name, checkpoint or match stops before any imaging."""
     if not names:
         raise InvalidArgument("name at least one --planner")
-    return match_planners([make_planner(name) for name in names])
+    return match_planners([make_planner(name, context) for name in names])
+
+
+def lift_baselines(context: PlannerContext) -> list[MatchedPlanner]:
+    """The baselines every run is compared with at its own view count: random, and fixed where plans exist."""
+    return [b for b in (baseline_at_count(kind, context) for kind in ("random", "fixed")) if b is not None]
 
 
 def evaluate(
@@ -116,7 +135,7 @@ def evaluate(
     on_object: Callable[[ObjectOutcome], None] | None = None,
 ) -> Evaluation:
     """Run the evaluation; ``on_object`` hears about each object as it finishes (in any order)."""
-    check_planners(spec.planners)
+    check_planners(spec.planners, PlannerContext(config, spec.fixed))
     for refiner in spec.refiners:
         refiner_config(config, refiner)
     if not spec.refiners:
@@ -155,7 +174,8 @@ def _evaluate_object(index: int, obj: ObjectSpec, config: GenerationConfig, spec
 def _evaluate_scenes(
     index: int, obj: ObjectSpec, config: GenerationConfig, spec: EvaluationSpec, outcome: ObjectOutcome
 ) -> None:
-    planners = check_planners(spec.planners)  # a plugin's scorer is built once per process (`plugin_scorer`)
+    context = PlannerContext(config, spec.fixed)
+    planners = check_planners(spec.planners, context)  # a plugin's scorer is built once per process
     prepared = prepare_object(obj, config)
     view_space = build_view_space(config.view_space)
     if max(spec.rotations) >= config.rotations:
@@ -166,7 +186,9 @@ def _evaluate_scenes(
         scene = build_scene(prepared, rotation, config, view_space)
         refined = [RefinedScene(scene, r, c) for r, c in zip(refiners, configs, strict=True)]
         for initial in spec.initial_views:
-            episodes = _evaluate_situation(scene, refined, initial, planners, spec.budget, outcome)
+            episodes = _evaluate_situation(
+                scene, refined, initial, planners, spec.budget, outcome, lift_baselines(context)
+            )
             outcome.episodes.extend(episodes)
             if spec.pictures is not None and rotation == spec.rotations[0] and initial == spec.initial_views[0]:
                 from datagen.evaluate.figures import draw_object
@@ -186,46 +208,69 @@ def _evaluate_situation(
     planners: list[Planner],
     budget: Budget,
     outcome: ObjectOutcome,
+    lifts: Sequence[MatchedPlanner] = (),
 ) -> list[Episode]:
     episodes = []
     for position, refined_scene in enumerate(refined):
         active = [p for p in planners if p.uses_refinement or position == 0]
-        episodes += run_situation(Situation(refined_scene, initial), active, budget, outcome.failures)
+        episodes += run_situation(Situation(refined_scene, initial), active, budget, outcome.failures, lifts)
     return episodes
 
 
 def run_situation(
-    situation: Situation, planners: Sequence[Planner], budget: Budget, failures: list[str]
+    situation: Situation,
+    planners: Sequence[Planner],
+    budget: Budget,
+    failures: list[str],
+    lifts: Sequence[MatchedPlanner] = (),
 ) -> list[Episode]:
     """Every planner's run on one situation, in the order given; a failed plan adds a line to ``failures``.
 
-    Matched randoms run last (they may match only planners that are not matched randoms), each with the
-    view count of its planner's plan here, and are skipped where that plan failed; the matched planner's
-    run then carries the random's coverage (its lift)."""
+    Matched baselines run last (they may match only planners that are not matched baselines), each with
+    the view count of its planner's plan here, and are skipped where that plan failed. Each run of a
+    planner that looks at the object carries the coverage of each of ``lifts`` (unbound matched
+    baselines: random, fixed) at its own view count in this situation, under the same budget."""
     runs: dict[int, Episode] = {}
-    for index in sorted(range(len(planners)), key=lambda i: isinstance(planners[i], MatchedRandomPlanner)):
+    for index in sorted(range(len(planners)), key=lambda i: isinstance(planners[i], MatchedPlanner)):
         planner = _situated(planners[index], planners, runs)
         episode = None if planner is None else _attempt(planner, situation, budget, failures)
         if episode is not None:
             runs[index] = episode
-    return [_with_lift(runs[i], planners, runs) for i in sorted(runs)]
+    return [_with_lifts(runs[i], planners, runs, situation, budget, lifts) for i in sorted(runs)]
 
 
 def _situated(planner: Planner, planners: Sequence[Planner], runs: dict[int, Episode]) -> Planner | None:
-    """The planner to run here: a matched random gets its planner's view count (None: that plan failed)."""
-    if not isinstance(planner, MatchedRandomPlanner):
+    """The planner to run here: a matched baseline gets its planner's view count (None: that plan failed)."""
+    if not isinstance(planner, MatchedPlanner):
         return planner
     matched = next((e for i, e in runs.items() if planners[i].name == planner.matched), None)
     return None if matched is None else planner.taking(chosen_count(matched.planned, matched.initial_view))
 
 
-def _with_lift(episode: Episode, planners: Sequence[Planner], runs: dict[int, Episode]) -> Episode:
-    """The run with the coverage of the first matched random that matches its planner, if any."""
+def _with_lifts(
+    episode: Episode,
+    planners: Sequence[Planner],
+    runs: dict[int, Episode],
+    situation: Situation,
+    budget: Budget,
+    lifts: Sequence[MatchedPlanner],
+) -> Episode:
+    """The run with the coverage of random views and of the fixed plan at its own view count: from a
+    ``random:match``/``fixed:match`` of this planner in the run, else from ``lifts``."""
+    planner = next(p for p in planners if p.name == episode.planner)
+    if is_baseline(planner):
+        return episode
+    found: dict[str, float] = {}
     for index, other in runs.items():
-        planner = planners[index]
-        if isinstance(planner, MatchedRandomPlanner) and planner.matched == episode.planner:
-            return replace(episode, matched_random_coverage=other.coverage)
-    return episode
+        matched = planners[index]
+        if isinstance(matched, MatchedPlanner) and matched.matched == planner.name:
+            found.setdefault(matched.kind, other.coverage)
+    count = chosen_count(episode.planned, episode.initial_view)
+    for baseline in lifts:
+        if baseline.kind not in found:
+            bound = baseline.matching(planner).taking(count)
+            found[baseline.kind] = run_episode(bound, situation, budget, measure=False).coverage
+    return replace(episode, matched_random_coverage=found.get("random"), matched_fixed_coverage=found.get("fixed"))
 
 
 def _attempt(planner: Planner, situation: Situation, budget: Budget, failures: list[str]) -> Episode | None:

@@ -19,11 +19,21 @@ import numpy.typing as npt
 from datagen.evaluate.scene import Scene
 from datagen.pipeline.coverage import Coverage, coverage_table
 from datagen.pipeline.keys import key_centres, unpack_keys
+from datagen.pipeline.objectives import CaseLabeller, task_labeller
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import Refiner
-from datagen.pipeline.setcover import CoverResult, LabelError, TaskCover
-from datagen.pipeline.task import RefinedViews, case_inputs, refine_views, task_cover
+from datagen.pipeline.setcover import CoverResult, LabelError
+from datagen.pipeline.task import RefinedViews, case_inputs, refine_views
 from schemas.config import GenerationConfig
+
+LABEL_FIELDS = ("alpha", "label_objective", "label_budget", "label_tau", "label_tie_break")
+"""The config fields a label depends on beyond the scene and its refinement."""
+
+
+def needs_refinement(config: GenerationConfig) -> bool:
+    """Whether labels under ``config`` read the refined views (the paper's cover objective does; the
+    visibility objectives read only what each view sees)."""
+    return config.label_objective == "cover"
 
 
 @dataclass(frozen=True)
@@ -48,6 +58,7 @@ class RefinedScene:
         self.refiner = refiner
         self.config = config
         self.refine_seconds = 0.0
+        self._labellers: dict[tuple[object, ...], CaseLabeller] = {}
 
     @cached_property
     def views(self) -> RefinedViews:
@@ -61,9 +72,21 @@ class RefinedScene:
         """P_full and its coverage masks for the config's alpha."""
         return coverage_table(self.views.sets.refined, self.config.alpha)
 
-    @cached_property
-    def cover(self) -> TaskCover:
-        return task_cover(self.coverage.masks, self.config, list_covers=False)
+    def labeller(self, config: GenerationConfig | None = None) -> CaseLabeller:
+        """The generator's labeller of this scene under ``config`` (default: the scene's own), built once
+        per label setting; the paper's objective refines the views first, the visibility ones never do."""
+        config = self.config if config is None else config
+        key = tuple(getattr(config, name) for name in LABEL_FIELDS)
+        labellers = self._labellers
+        if key not in labellers:
+            if needs_refinement(config):
+                same = config.alpha == self.config.alpha
+                coverage = self.coverage if same else coverage_table(self.views.sets.refined, config.alpha)
+            else:
+                coverage = Coverage(np.empty(0, dtype=np.int64), np.empty(0, dtype=np.uint64), config.alpha)
+            visible = tuple(o.keys for o in self.scene.scan.observations)
+            labellers[key] = task_labeller(visible, coverage, config, list_covers=False)
+        return labellers[key]
 
     def relabelled(self, config: GenerationConfig) -> RefinedScene:
         """The same refined views labelled under another config (another alpha): no new refinement."""
@@ -87,9 +110,10 @@ class RefinedScene:
             observed=self._centres(observed),
         )
 
-    def label(self, initial_view: int) -> CoverResult:
-        """The label generation computes for the single-view case ``initial_view``."""
-        return self.cover.label(1 << initial_view)
+    def label(self, initial_view: int, config: GenerationConfig | None = None) -> CoverResult:
+        """The label generation computes for the single-view case ``initial_view`` (under ``config``'s
+        label settings; default: the scene's)."""
+        return self.labeller(config).label(1 << initial_view)
 
     def _centres(self, packed: npt.NDArray[np.int64]) -> npt.NDArray[np.float32]:
         return key_centres(unpack_keys(packed), self.config.voxel_size, self.config.grid_offset).astype(np.float32)
@@ -103,6 +127,7 @@ class Situation:
             raise ValueError(f"initial view {initial_view} is outside 0..{refined.scene.num_views - 1}")
         self.refined = refined
         self.initial_view = initial_view
+        self._labels: dict[int, CoverResult] = {}
 
     @property
     def scene(self) -> Scene:
@@ -119,7 +144,8 @@ class Situation:
     def prepare(self) -> None:
         """Do the generator's share now (refine every view, build the coverage table and this case's
         input) so that a planner's timed call measures planning alone."""
-        self.refined.cover  # noqa: B018 (cached property computed for its side effect)
+        if needs_refinement(self.config):
+            self.refined.labeller()
         self._request  # noqa: B018
 
     @property
@@ -132,13 +158,13 @@ class Situation:
         """The sample input for this case (refines the scene's views on first use)."""
         return self._request
 
-    @cached_property
-    def _label(self) -> CoverResult:
-        return self.refined.label(self.initial_view)
-
-    def oracle_label(self) -> CoverResult:
-        """The generator's exact label for this case (raises `LabelError` if the solver gives up)."""
-        return self._label
+    def oracle_label(self, config: GenerationConfig | None = None) -> CoverResult:
+        """The generator's exact label for this case, under ``config``'s label settings (default: the
+        scene's); raises `LabelError` if the solver gives up. Computed once per label setting."""
+        labeller = self.refined.labeller(config)
+        if id(labeller) not in self._labels:  # the scene keeps every labeller it built: ids stay unique
+            self._labels[id(labeller)] = labeller.label(1 << self.initial_view)
+        return self._labels[id(labeller)]
 
     def rng(self) -> np.random.Generator:
         """A fresh seeded stream for this (object, rotation, initial view), independent of all others."""

@@ -27,14 +27,14 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import highspy
 import numpy as np
 import numpy.typing as npt
 
 from datagen.pipeline import setcover
-from schemas.config import MAX_VIEWS
+from schemas.config import MAX_VIEWS, GenerationConfig
 from schemas.index import CommitRecord
 from schemas.shard import COVERS, LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from storage import (
@@ -49,6 +49,9 @@ from storage import (
     undominated,
 )
 
+if TYPE_CHECKING:
+    from datagen.inspection.coverage_check import VisibilityRows
+
 MaskArray = npt.NDArray[np.uint64]
 
 SEARCH_LIMIT = 2_000_000
@@ -62,7 +65,8 @@ CHUNK = 4096
 TIME_LIMIT = 30.0
 """Seconds per HiGHS model; a model not solved in time is reported, never guessed."""
 
-_HIGHS_LOCK = threading.Lock()
+HIGHS_LOCK = threading.Lock()
+"""Held around every HiGHS run of the checks (shards are checked on a few threads)."""
 
 UNREADABLE = "unreadable"
 UNCOVERED = "uncovered"
@@ -171,6 +175,7 @@ class ShardLabelCheck:
     def __init__(self, location: Location, full: bool, seed: int = 0, search_limit: int = SEARCH_LIMIT) -> None:
         info = read_info(location)
         self.records = read_commits(location)[0]
+        self.config = info.config
         self.alpha, self.num_views = info.config.alpha, info.num_views
         self.tie_break = info.config.label_tie_break
         self.full, self.seed, self.search_limit = full, seed, search_limit
@@ -190,6 +195,7 @@ class ShardLabelCheck:
             self.index_rows,
             self.search_limit,
             self.tie_break,
+            self.config,
         )
         with self._lock:
             self.report.problems.extend(problems)
@@ -253,18 +259,27 @@ def _check_reader(
     index_rows: dict[tuple[str, int], IndexRow],
     search_limit: int,
     tie_break: setcover.TieBreak = "index",
+    config: GenerationConfig | None = None,
 ) -> tuple[list[LabelProblem], int]:
-    """The label problems of an open shard and how many labels were checked."""
+    """The label problems of an open shard and how many labels were checked (``config``: the dataset's,
+    for its label objective; None reads as the paper's cover objective)."""
     where = record.shard
+    visibility = config is not None and config.label_objective != "cover"
     try:
         masks = shard.array(MASKS)
-        refined, offsets = _refined_sets(shard, num_views)
+        refined, offsets = _task_sets(shard, "visible" if visibility else "refined", num_views)
     except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
         line = f"{where}: cannot check labels ({_why(exc)})"
         return [LabelProblem(where, None, UNREADABLE, line)], 0
     if masks.dtype != MASK_DTYPE or masks.ndim != 2 or masks.shape[1] != 2:
         return [LabelProblem(where, None, UNREADABLE, f"{where}: cannot check labels (masks {masks.shape})")], 0
-    cover = TaskRows.from_masks(full_masks(refined, offsets, alpha), search_limit, tie_break, num_views)
+    cover: TaskRows | VisibilityRows
+    if config is not None and visibility:
+        from datagen.inspection.coverage_check import VisibilityRows
+
+        cover = VisibilityRows(full_masks(refined, offsets, 1), config, search_limit)
+    else:
+        cover = TaskRows.from_masks(full_masks(refined, offsets, alpha), search_limit, tie_break, num_views)
     listed = _listed_covers(shard, masks.shape[0])
     count = masks.shape[0]
     rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
@@ -297,15 +312,16 @@ def _listed_covers(shard: ShardReader, count: int) -> list[tuple[int, ...]] | No
     return [tuple(int(c) for c in covers[offsets[i] : offsets[i + 1]]) for i in range(count)]
 
 
-def _refined_sets(shard: ShardReader, num_views: int) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.int64]]:
-    """The stored P_i (keys and offsets), refusing offsets that do not describe the key array."""
-    keys, offsets = shard.array(keys_array("refined")), shard.array(offsets_array("refined"))
+def _task_sets(shard: ShardReader, name: str, num_views: int) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.int64]]:
+    """The stored P_i (``refined``) or V_i (``visible``), keys and offsets, refusing offsets that do not
+    describe the key array."""
+    keys, offsets = shard.array(keys_array(name)), shard.array(offsets_array(name))
     if offsets.shape != (num_views + 1,) or offsets[0] != 0 or offsets[-1] != keys.shape[0]:
-        raise ValueError(f"refined offsets {offsets.shape} do not match {keys.shape[0]} keys and {num_views} views")
+        raise ValueError(f"{name} offsets {offsets.shape} do not match {keys.shape[0]} keys and {num_views} views")
     if (np.diff(offsets) < 0).any():
-        raise ValueError("refined offsets are not monotone")
+        raise ValueError(f"{name} offsets are not monotone")
     if keys.ndim != 2 or keys.shape[1] != 3:
-        raise ValueError(f"refined keys have shape {keys.shape}")
+        raise ValueError(f"{name} keys have shape {keys.shape}")
     return keys, offsets
 
 
@@ -642,7 +658,7 @@ def _min_cover_size(
     lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = m, lower_rows.size
     lp.integrality_ = [highspy.HighsVarType.kInteger] * m
     # setcover's factory: HiGHS sizes one thread pool per process, and it keeps track of that size.
-    with _HIGHS_LOCK:  # shards are checked on a few threads; HiGHS's scheduler is one per process
+    with HIGHS_LOCK:  # shards are checked on a few threads; HiGHS's scheduler is one per process
         solver = setcover.highs_solver(1, TIME_LIMIT)
         solver.passModel(lp)
         solver.run()

@@ -19,6 +19,7 @@ from datagen.pipeline.cases import long_tail_cases
 from datagen.pipeline.coverage import Coverage, coverage_table, filter_to_ground_truth
 from datagen.pipeline.imaging import Observation, TaskImaging
 from datagen.pipeline.keys import key_centres, unpack_keys
+from datagen.pipeline.objectives import CaseLabeller, cover_solver, task_labeller
 from datagen.pipeline.objects.prepare import PreparedObject
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import Refiner, RefineRequest, refined_keys
@@ -199,10 +200,12 @@ def run_task(
 
 @dataclass(frozen=True)
 class TaskLabels:
-    """P_full's coverage at one alpha and every case's label on it."""
+    """P_full's coverage at one alpha, its set-cover rows, and every case's label under the config's
+    objective."""
 
     coverage: Coverage
     cover: TaskCover
+    """The paper's set-cover rows of P_full (a shard's ``cover_rows``, whatever the objective)."""
     labels: dict[int, CoverResult]
     failures: list[CaseFailure]
 
@@ -210,21 +213,16 @@ class TaskLabels:
 def label_task(
     sets: TaskSets, cases: Sequence[int], config: GenerationConfig, threads: int = 1, clock: StepClock | None = None
 ) -> TaskLabels:
-    """P_full, coverage and each case's exact label (with its minimum covers) for ``config.alpha``,
-    from the P_i alone: what generation and `relabel` share; ``clock`` times coverage and labels."""
+    """P_full, coverage and each case's exact label (with the sets as good as it) for the config's
+    objective (`datagen.pipeline.objectives`), from the stored V_i and P_i alone: what generation and
+    `relabel` share; ``clock`` times coverage and labels."""
     with timed(clock, "coverage"):
         coverage = coverage_table(sets.refined, config.alpha)
     with timed(clock, "labels"):
-        cover = task_cover(coverage.masks, config)
-        labels, failures = label_cases(cover, cases, threads)
+        cover = cover_solver(coverage.masks, config)
+        labeller = cover if config.label_objective == "cover" else task_labeller(sets.visible, coverage, config)
+        labels, failures = label_cases(labeller, cases, threads)
     return TaskLabels(coverage, cover, labels, failures)
-
-
-def task_cover(full_masks: npt.ArrayLike, config: GenerationConfig, list_covers: bool = True) -> TaskCover:
-    """The label solver of one task as the config asks for it (the one place it is built);
-    ``list_covers=False`` skips listing each case's minimum covers (labels alone)."""
-    cap = config.label_cover_cap if list_covers else None
-    return TaskCover(full_masks, config.num_views, config.solver_time_limit, config.label_tie_break, cap)
 
 
 def labelled_samples(
@@ -274,9 +272,9 @@ def task_metadata(config: GenerationConfig, refiner: Refiner) -> dict[str, objec
 
 
 def label_cases(
-    solver: TaskCover, cases: Sequence[int], threads: int = 1
+    solver: CaseLabeller, cases: Sequence[int], threads: int = 1
 ) -> tuple[dict[int, CoverResult], list[CaseFailure]]:
-    """Each case's exact label on one task's rows; a case the solver cannot label is a failure."""
+    """Each case's exact label; a case the solver cannot label is a failure."""
     labels: dict[int, CoverResult] = {}
     failures: list[CaseFailure] = []
     for case in cases:

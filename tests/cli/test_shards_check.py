@@ -44,6 +44,7 @@ from storage import StorageError, committed_tasks, open_dataset, open_location, 
 from storage.covers import mask_views
 from storage.shards import KEY_CHUNK_ROWS, ShardReader
 from storage.validate import SAMPLED_ROWS_PER_SHARD
+from storage.visibility import VisibilityJudge
 from storage.writer import commit_path, fragment_path, shard_path
 
 runner = CliRunner()
@@ -119,6 +120,13 @@ def write_label(root: Path, record: CommitRecord, row: int, label: int, index: b
         labels[row], sizes[row] = label, label.bit_count()
         rewrite_parquet(root / "index.parquet", "label", labels)
         rewrite_parquet(root / "index.parquet", "label_size", sizes)
+
+
+def per_view_keys(root: Path | str, record: CommitRecord, name: str) -> list[np.ndarray]:
+    """A shard's stored per-view key sets (``visible`` or ``refined``), int16 triples per view."""
+    shard = ShardReader(open_location(str(root)), record.shard)
+    keys, offsets = shard.array(f"{name}_keys"), shard.array(f"{name}_offsets")
+    return [keys[offsets[v] : offsets[v + 1]] for v in range(offsets.size - 1)]
 
 
 def task_rows(root: Path | str, record: CommitRecord, alpha: int) -> TaskRows:
@@ -691,4 +699,79 @@ def test_relabel_with_an_unknown_tie_break(engine_dataset: EngineDataset, tmp_pa
     result = shards("relabel", engine_dataset.url, "--tie-break", "fewest", "--out", str(tmp_path / "out"))
     assert result.exit_code == 2
     assert result.output.splitlines() == ["error: --tie-break 'fewest' is not one of index, coverage"]
+    assert not (tmp_path / "out").exists()
+
+
+# -- the visibility objectives (docs/pipeline.md section 7.5) ------------------------------------------------
+
+VISIBILITY = [
+    ({"label_objective": "max_coverage", "label_budget": 2}, ["--objective", "max_coverage", "--budget", "2"]),
+    ({"label_objective": "partial_cover", "label_tau": 0.85}, ["--objective", "partial_cover", "--tau", "0.85"]),
+]
+
+
+@pytest.mark.parametrize(("changes", "options"), VISIBILITY, ids=["max_coverage", "partial_cover"])
+def test_relabel_to_a_visibility_objective_equals_a_fresh_generation(
+    tmp_path: Path, changes: dict[str, object], options: list[str]
+) -> None:
+    """Same samples, labels, ties, counts, support and cover rows as generating with the objective; the new
+    dataset validates with the solver's independent check (every view subset tried)."""
+    from support import storage as fx
+
+    source, fresh, out = tmp_path / "paper", tmp_path / "fresh", tmp_path / "relabelled"
+    fx.build_dataset(str(source), finalise_index=True)
+    fx.build_dataset(str(fresh), finalise_index=True, cfg=fx.config(**changes))
+    result = shards("relabel", str(source), *options, "--out", str(out))
+    assert result.exit_code == 0, result.output
+    assert f"for {changes['label_objective']} (" in result.output and "(source: cover, alpha 10" in result.output
+    assert info_of(str(out)).config == fx.config(**changes)
+    assert info_of(str(out)).config_hash == info_of(str(fresh)).config_hash != info_of(str(source)).config_hash
+    assert assert_same_samples(str(out), str(fresh)) == len(open_dataset(str(fresh)))
+    checked = shards("validate", str(out), "--all")
+    assert checked.exit_code == 0, checked.output
+    back = shards("relabel", str(out), "--objective", "cover", "--out", str(tmp_path / "back"))
+    assert back.exit_code == 0, back.output
+    assert assert_same_samples(str(tmp_path / "back"), str(source)) == len(open_dataset(str(source)))
+
+
+def test_validate_all_finds_a_visibility_label_that_is_not_the_best(tmp_path: Path) -> None:
+    from support import storage as fx
+
+    root = tmp_path / "mc"
+    fx.build_dataset(str(root), finalise_index=True, cfg=fx.config(label_objective="max_coverage", label_budget=1))
+    record = first(root)
+    masks = stored_masks(root, record)
+    row = 0
+    case, label = (int(m) for m in masks[row])
+    worse = next(1 << v for v in range(32) if not (case | label) >> v & 1)
+    write_label(root, record, row, worse)
+    result = validate_all(root)
+    name = sample_id(record.task_id, case)
+    judge = VisibilityJudge([pack_keys(k) for k in per_view_keys(root, record, "visible")], fx.config())
+    seen_worse, seen_label = judge.seen(case | worse), judge.seen(case | label)
+    assert seen_worse < seen_label
+    assert problem_lines(result) == [
+        f"{record.shard} row {row}: label {mask_views(worse)} is not among its 1 listed ties",
+        f"{name}: label {views_text(worse)} sees {seen_worse} keys, {views_text(label)} sees {seen_label}",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (
+            ["--objective", "best_guess"],
+            "error: --objective 'best_guess' is not one of cover, max_coverage, partial_cover",
+        ),
+        (["--objective", "partial_cover", "--tau", "1.5"], "error: --tau 1.5: Input should be less than or equal to 1"),
+        (["--objective", "max_coverage", "--tie-break", "coverage"], "error: label_tie_break = 'coverage' ranks views"),
+    ],
+)
+def test_relabel_with_a_bad_objective_is_one_line(tmp_path: Path, options: list[str], message: str) -> None:
+    from support import storage as fx
+
+    fx.build_dataset(str(tmp_path / "source"))
+    result = shards("relabel", str(tmp_path / "source"), *options, "--out", str(tmp_path / "out"))
+    assert result.exit_code == 2 and len(result.output.splitlines()) == 1
+    assert result.output.startswith(message), result.output
     assert not (tmp_path / "out").exists()

@@ -100,7 +100,7 @@ def test_a_plugin_plans_and_unknown_names_list_it(install: Install, real: Refine
     with pytest.raises(PlannerError) as info:
         make_planner("nope:1")
     message = str(info.value)
-    assert message.startswith("unknown planner 'nope:1'; choose oracle, greedy") and "\n" not in message
+    assert message.startswith("unknown planner 'nope:1'; choose oracle, oracle:SETTING=V") and "\n" not in message
     assert "toy:ARG" in message
     with pytest.raises(PlannerError, match=r"^planner 'toy:x': toy:x: give a whole number of views$"):
         make_planner("toy:x")

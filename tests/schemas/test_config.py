@@ -156,19 +156,59 @@ def test_round_trip_keeps_float_bits(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(
-    ("field", "other"), [("label_tie_break", "coverage"), ("label_cover_cap", 64), ("poco_version", 2)]
+    ("field", "other"),
+    [
+        ("label_tie_break", "coverage"),
+        ("label_cover_cap", 64),
+        ("poco_version", 2),
+        ("label_objective", "max_coverage"),
+    ],
 )
 def test_fields_added_later_keep_older_hashes_at_their_default(field: str, other: object) -> None:
     """A dataset made before ``label_tie_break`` (its labels are the 'index' rule's),
-    ``label_cover_cap`` (version 1: no covers listed) or ``poco_version`` (cKDTree) existed keeps its hash."""
+    ``label_cover_cap`` (version 1: no covers listed), ``poco_version`` (cKDTree) or the label objectives
+    (the paper's cover) existed keeps its hash."""
     config = GenerationConfig()
     data = config.model_dump(mode="json")
     data["poco_weights"] = config.canonical_dict()["poco_weights"]
-    later = ("label_tie_break", "label_cover_cap", "poco_version")
+    later = ("label_tie_break", "label_cover_cap", "poco_version", "label_objective", "label_budget", "label_tau")
     before_the_fields = {k: v for k, v in data.items() if k not in later}
     assert field not in config.canonical_dict()
     assert config.config_hash() == hashlib.sha256(canonical_json(before_the_fields).encode()).hexdigest()
     assert config_from_dict({field: other}).canonical_dict()[field] == other
+
+
+@pytest.mark.parametrize(
+    ("objective", "used", "unused"),
+    [
+        ("cover", None, ("label_budget", 5)),
+        ("max_coverage", ("label_budget", 5), ("label_tau", 0.8)),
+        ("partial_cover", ("label_tau", 0.8), ("label_budget", 5)),
+    ],
+)
+def test_only_the_objectives_own_parameter_enters_the_hash(
+    objective: str, used: tuple[str, object] | None, unused: tuple[str, object]
+) -> None:
+    """A label parameter the objective does not read changes no sample, so it never changes the hash; the
+    one it reads does."""
+    base = config_from_dict({"label_objective": objective})
+    assert config_from_dict({"label_objective": objective, unused[0]: unused[1]}).config_hash() == base.config_hash()
+    assert unused[0] not in base.canonical_dict()
+    if used is not None:
+        changed = config_from_dict({"label_objective": objective, used[0]: used[1]})
+        assert changed.config_hash() != base.config_hash() and changed.canonical_dict()[used[0]] == used[1]
+
+
+def test_the_coverage_tie_break_is_only_for_the_cover_objective() -> None:
+    with pytest.raises(ConfigError, match="breaks ties by view index"):
+        config_from_dict({"label_objective": "max_coverage", "label_tie_break": "coverage"})
+
+
+def test_tau_keys_reads_tau_as_written() -> None:
+    """0.9 of 1,000 keys is 900 (not 901 from the binary 0.9000000000000000222); 0.9 of 1,001 is 901."""
+    assert config_from_dict({"label_tau": 0.9}).tau_keys(1000) == 900
+    assert config_from_dict({"label_tau": 0.9}).tau_keys(1001) == 901
+    assert config_from_dict({"label_tau": 1.0}).tau_keys(7) == 7
 
 
 def test_hash_is_sha256_hex() -> None:
@@ -198,6 +238,9 @@ CHANGES = [
     {"solver_time_limit": 20.0},
     {"label_tie_break": "coverage"},
     {"label_cover_cap": 64},
+    {"label_objective": "max_coverage"},
+    {"label_objective": "max_coverage", "label_budget": 2},
+    {"label_objective": "partial_cover", "label_tau": 0.8},
     {"view_space": {"radius": 0.41}},
     {"view_space": {"source": "generated"}},
     {"view_space": {"source": "generated", "generator_seed": 1}},

@@ -34,8 +34,9 @@ CREATED = "2026-01-01T00:00:00"
 
 
 @functools.cache
-def config() -> GenerationConfig:
-    return GenerationConfig(refiner="none")
+def config(**changes: object) -> GenerationConfig:
+    """The tests' config (refiner none), with ``changes`` (e.g. another label objective)."""
+    return GenerationConfig.model_validate({"refiner": "none", **changes})
 
 
 @functools.cache
@@ -61,13 +62,14 @@ def task_ids() -> list[str]:
 
 
 @functools.cache
-def task_results() -> tuple:  # type: ignore[type-arg]
-    """`run_task` for each of `OBJECTS` at rotation 0 (default config), computed once per process."""
+def task_results(cfg: GenerationConfig | None = None) -> tuple:  # type: ignore[type-arg]
+    """`run_task` for each of `OBJECTS` at rotation 0 (default: the tests' config), computed once per
+    process and config."""
     from datagen.pipeline.objects.prepare import prepare_object
     from datagen.pipeline.refine import make_refiner
     from datagen.pipeline.task import run_task
 
-    cfg = config()
+    cfg = config() if cfg is None else cfg
     results = []
     for spec in _specs():
         prepared = prepare_object(spec, cfg)
@@ -76,11 +78,13 @@ def task_results() -> tuple:  # type: ignore[type-arg]
 
 
 @functools.cache
-def payloads(schema_version: int = SCHEMA_VERSION) -> tuple[ShardPayload, ...]:
-    """Every task's payload in layout ``schema_version`` (1: without the label ambiguity)."""
+def payloads(schema_version: int = SCHEMA_VERSION, cfg: GenerationConfig | None = None) -> tuple[ShardPayload, ...]:
+    """Every task's payload in layout ``schema_version`` (1: without the label ambiguity), generated
+    under ``cfg`` (default: the tests' config)."""
     from datagen.engine.shard_payload import task_payload
 
-    return tuple(task_payload(result, config(), schema_version) for result in task_results())
+    cfg = config() if cfg is None else cfg
+    return tuple(task_payload(result, cfg, schema_version) for result in task_results(cfg))
 
 
 @functools.cache
@@ -92,8 +96,8 @@ def small_payload(samples: int = 6) -> ShardPayload:
     return task_payload(dataclasses.replace(result, samples=result.samples[:samples]), config())
 
 
-def dataset_info(schema_version: int = SCHEMA_VERSION) -> DatasetInfo:
-    cfg = config()
+def dataset_info(schema_version: int = SCHEMA_VERSION, cfg: GenerationConfig | None = None) -> DatasetInfo:
+    cfg = config() if cfg is None else cfg
     return DatasetInfo(
         schema_version=schema_version,
         config=cfg,
@@ -110,12 +114,13 @@ def build_dataset(
     attempt_id: str = ATTEMPT,
     finalise_index: bool = False,
     schema_version: int = SCHEMA_VERSION,
+    cfg: GenerationConfig | None = None,
 ) -> Location:
-    """Initialise a dataset at ``url`` (layout ``schema_version``) and commit each payload (default:
-    every task, in that layout) with ``attempt_id``."""
+    """Initialise a dataset at ``url`` (layout ``schema_version``, generated under ``cfg``, default the
+    tests' config) and commit each payload (default: every task, in that layout) with ``attempt_id``."""
     location = open_location(url)
-    init_dataset(location, dataset_info(schema_version))
-    for payload in payloads(schema_version) if task_payloads is None else task_payloads:
+    init_dataset(location, dataset_info(schema_version, cfg))
+    for payload in payloads(schema_version, cfg) if task_payloads is None else task_payloads:
         write_task(location, payload, attempt_id)
     if finalise_index:
         finalise(location)

@@ -1,0 +1,119 @@
+"""The floor: the best fixed view sets of a training dataset (`datagen.evaluate.fixed`), against a brute-force
+search over every view subset, played by `datagen evaluate` and as every planner's lift at equal views."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support import storage as fx
+from typer.testing import CliRunner
+
+from datagen.cli.main import app
+from datagen.errors import PlannerError
+from datagen.evaluate.fixed import case_weights, choose_fixed_plans, spread_views
+from datagen.evaluate.planners import PlannerContext, make_planner
+from datagen.pipeline.coverage import view_masks
+
+
+@pytest.fixture(scope="module")
+def training(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """Capsule and cone at rotation 0 (refiner none): 64 single-view cases."""
+    url = str(tmp_path_factory.mktemp("fixed") / "train")
+    fx.build_dataset(url, finalise_index=True)
+    return url
+
+
+def brute_force_plans(size: int, without: int | None = None) -> tuple[tuple[int, ...], float]:
+    """The size-subset of views (not ``without``) with the highest mean coverage over every single-view case
+    of the training tasks (each case: its view plus the subset, over all keys some view sees)."""
+    tasks = [view_masks(result.sets.visible)[1] for result in fx.task_results()]
+    views = [v for v in range(32) if v != without]
+    best: tuple[float, tuple[int, ...]] = (-1.0, ())
+    for subset in itertools.combinations(views, size):
+        chosen = np.uint64(sum(1 << v for v in subset))
+        total = 0.0
+        for masks in tasks:
+            by_subset = (masks & chosen) != 0
+            for initial in range(32):
+                seen = by_subset | ((masks >> np.uint64(initial)) & np.uint64(1)).astype(bool)
+                total += np.count_nonzero(seen) / masks.size
+        mean = total / (32 * len(tasks))
+        if mean > best[0] + 1e-12:  # combinations come in lexicographic order: the first best stays
+            best = (mean, subset)
+    return best[1], best[0]
+
+
+def test_fixed_plans_equal_a_brute_force_search(training: str) -> None:
+    weights = case_weights(training)
+    assert (weights.tasks, weights.cases) == (2, 64)
+    plans = choose_fixed_plans(weights, training, initial_views=(0, 5, 20), sizes=range(1, 4))
+    for size in (1, 2, 3):
+        views, mean = brute_force_plans(size)
+        assert plans.by_size[size].views == views and plans.by_size[size].exact
+        assert plans.by_size[size].mean_coverage == pytest.approx(mean, abs=1e-9)
+        for initial in (0, 5, 20):
+            played = plans.plan(size, initial)
+            assert initial not in played.views and len(played.views) == size
+            if initial in views:
+                assert played.views == brute_force_plans(size, without=initial)[0]
+            else:
+                assert played == plans.by_size[size]
+    assert any(line.startswith("  1 views:") for line in plans.summary())
+    assert "exact for sizes 1-3" in plans.summary()[0]
+
+
+def test_spread_takes_the_farthest_view_each_time() -> None:
+    positions = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [3.0, 0.0, 0.0], [10.0, 0.0, 0.0], [6.0, 0.0, 0.0]])
+    assert spread_views(positions, 0, 4) == (3, 4, 2, 1)
+    assert spread_views(positions, 3, 2) == (0, 4)
+    assert spread_views(positions, 0, 9) == (3, 4, 2, 1)  # never more than the other views
+
+
+def test_fixed_without_a_dataset_is_one_error_naming_the_option(tmp_path: Path) -> None:
+    with pytest.raises(PlannerError, match="give --fixed-from URL"):
+        make_planner("fixed:match=oracle", PlannerContext())
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:capsule\n")
+    result = CliRunner().invoke(app, ["evaluate", "--objects", str(objects), "-p", "oracle", "-p", "fixed"])
+    assert result.exit_code == 2
+    assert result.output.splitlines() == [
+        "error: planner 'fixed' plays the best fixed view sets of a training dataset: give --fixed-from URL"
+    ]
+    missing = tmp_path / "no-dataset"
+    result = CliRunner().invoke(
+        app, ["evaluate", "--objects", str(objects), "-p", "fixed", "--fixed-from", str(missing)]
+    )
+    assert result.exit_code == 2 and len(result.output.splitlines()) == 1
+    assert result.output.startswith("error: ") and str(missing) in result.output
+
+
+def test_every_planner_is_judged_against_the_fixed_plan_at_equal_views(training: str, tmp_path: Path) -> None:
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:cone\n")
+    config = tmp_path / "config.toml"
+    config.write_text('refiner = "none"\n')
+    args = ["evaluate", "--workers", "1", "--objects", str(objects), "--config", str(config)]
+    args += ["--initial-views", "0,9", "--fixed-from", training, "--tau", "0.9", "--json"]
+    args += ["-p", "oracle", "-p", "fixed:match=oracle", "-p", "oracle:budget=1", "-p", "fixed:2", "-p", "spread:2"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout)
+    assert report["fixed"]["tasks"] == 2 and report["fixed"]["plans"]["1"]["exact"]
+    runs = {(r["planner"], r["initial_view"]): r for r in report["runs"]}
+    for view in (0, 9):
+        oracle, fixed = runs["oracle", view], runs["fixed:match=oracle", view]
+        assert len(fixed["planned"]) == len(oracle["planned"]) and view not in fixed["planned"]
+        assert oracle["matched_fixed_coverage"] == fixed["coverage"]
+        assert oracle["lift_fixed"] == pytest.approx(oracle["coverage"] - fixed["coverage"], abs=1e-5)
+        best = runs["oracle:budget=1", view]
+        assert len(best["planned"]) == 1 and best["lift_fixed"] >= -1e-9  # the best single view beats any constant
+        assert fixed["lift_fixed"] is None and fixed["count_curve"] is not None
+        # fixed:2 is the initial view and one more: its coverage is the curve at one new view
+        assert runs["fixed:2", view]["count_curve"][1] == pytest.approx(runs["fixed:2", view]["coverage"] / 100)
+    rows = {row["planner"]: row for row in report["rows"]}
+    assert rows["fixed:2"]["views_to_tau"] is not None and rows["oracle"]["views_to_tau"] is None
+    assert rows["oracle"]["lift_fixed"] is not None and rows["spread:2"]["lift_fixed"] is None
