@@ -25,14 +25,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import subprocess
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-OBJECTS = REPO_ROOT / "examples" / "watertight-meshes.txt"
+from planner_runs import pm, unseen
+
 FLOOR = [f"{kind}:{k}" for k in range(2, 7) for kind in ("fixed", "spread", "random")]
 ORACLES = [
     "oracle",
@@ -47,29 +46,6 @@ ORACLES = [
     "oracle:tau=0.9",
     "oracle:tau=0.95",
 ]
-
-
-def evaluate(train: str, planners: Sequence[str], tau: float | None, workers: int) -> dict[str, object]:
-    command = [
-        "datagen", "evaluate", "--objects", str(OBJECTS), "--rotations", "0,4", "--initial-views", "0,8,16,24",
-        "--fixed-from", train, "--workers", str(workers), "--json",
-    ]  # fmt: skip
-    if tau is not None:
-        command += ["--tau", str(tau)]
-    for planner in planners:
-        command += ["--planner", planner]
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
-    done = subprocess.run(command, cwd=REPO_ROOT, env=env, capture_output=True, text=True, check=False)
-    if done.returncode != 0:
-        raise SystemExit(f"datagen evaluate failed ({done.returncode}): {done.stderr[-3000:]}")
-    return json.loads(done.stdout)  # type: ignore[no-any-return]
-
-
-def pm(row: dict[str, object], key: str, digits: int = 2) -> str:
-    value, spread = row.get(key), row.get(f"{key}_std")
-    if value is None:
-        return "-"
-    return f"{value:.{digits}f} ± {spread:.{digits}f}"
 
 
 def per_object_margins(report: dict[str, object]) -> dict[str, dict[str, float]]:
@@ -149,7 +125,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--json", type=Path, help="keep evaluate's whole report here")
     args = parser.parse_args(argv)
     planners = [*args.objectives, *args.planner, *([] if args.no_floor else FLOOR)]
-    report = evaluate(args.train, planners, args.tau, args.workers)
+    extra = ["--workers", str(args.workers), *(["--tau", str(args.tau)] if args.tau is not None else [])]
+    with tempfile.TemporaryDirectory() as folder:
+        report = unseen(planners, Path(folder), "label-margin", fixed_from=args.train, extra=extra)
     if args.json:
         args.json.write_text(json.dumps(report))
     lines = [

@@ -12,9 +12,10 @@ the same held-out objects of the dataset:
 - ``--also NAME=URL``: a run on every training object of another dataset of the same config (for
   example the same objects plus seeded variants of them, `datagen objects variants`).
 
-Each point is played on the six unseen watertight meshes (48 runs) beside random views at its own
-view count, run by run. Prints a Markdown table (coverage, views, lift over random, held-out F1
-against the nearest minimum cover, training objects and samples) and draws DIR/learning-curve.png.
+Each point is played on the six unseen watertight meshes (48 runs) beside the best fixed view set of
+its training data and random views at its own view count, run by run. Prints a Markdown table
+(coverage, views, lift over fixed and over random, held-out F1 against the nearest minimum cover,
+training objects and samples) and draws DIR/learning-curve.png.
 """
 
 from __future__ import annotations
@@ -73,7 +74,7 @@ def main() -> None:
         checkpoint = train(point.spec, point.data, args.out, args.steps, args.threads)
         figures = held_out(checkpoint, point.data, [args.decoding], args.threads)
         planner = f"osvp+{args.decoding}:{checkpoint}"
-        result = unseen([*matched(planner)], args.out / point.name, "unseen")
+        result = unseen([*matched(planner)], args.out / point.name, "unseen", fixed_from=point.data)
         done = json.loads((args.out / point.name / "done").read_text())
         trained = _trained_on(checkpoint)
         rows.append(
@@ -84,6 +85,7 @@ def main() -> None:
                 "samples": trained["samples"],
                 "unseen": row_of(result, planner),
                 "random": row_of(result, f"random:match={planner}"),
+                "fixed": row_of(result, f"fixed:match={planner}"),
                 "held_out": figures["decodings"][args.decoding],
                 "train_seconds": done["seconds"],
             }
@@ -105,15 +107,17 @@ def _trained_on(checkpoint: Path) -> dict[str, int]:
 
 def markdown(rows: list[dict[str, Any]]) -> str:
     lines = [
-        "| point | training objects | training samples | coverage % | views | lift over random % "
-        "| random at equal views % | F1 nearest cover (held out) | train min |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| point | training objects | training samples | coverage % | views | lift over fixed % "
+        "| fixed at equal views % | lift over random % | random at equal views % | F1 nearest cover (held out) "
+        "| train min |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         unseen_row, held = row["unseen"], row["held_out"]
         lines.append(
             f"| {row['point']} | {row['objects']} | {row['samples']} | {pm(unseen_row, 'coverage')} | "
-            f"{pm(unseen_row, 'views')} | {pm(unseen_row, 'lift')} | {pm(row['random'], 'coverage')} | "
+            f"{pm(unseen_row, 'views')} | {pm(unseen_row, 'lift_fixed')} | {pm(row['fixed'], 'coverage')} | "
+            f"{pm(unseen_row, 'lift')} | {pm(row['random'], 'coverage')} | "
             f"{held.get('cover_f1', float('nan')):.3f} | {row['train_seconds'] / 60:.0f} |"
         )
     return "\n".join(lines)
@@ -126,8 +130,10 @@ def draw(rows: list[dict[str, Any]], path: Path, title: str) -> None:
     figure = Figure(figsize=(11, 4.2), dpi=100)
     curves = (
         ("coverage", "o-", "planner coverage %"),
+        ("fixed", "d--", "fixed, equal views %"),
         ("random", "s--", "random, equal views %"),
-        ("lift", "^-", "lift %"),
+        ("lift_fixed", "v-", "lift over fixed %"),
+        ("lift", "^-", "lift over random %"),
     )
     for column, kind in enumerate(("objects", "samples")):
         axes = figure.add_subplot(1, 2, column + 1)
@@ -152,8 +158,8 @@ def draw(rows: list[dict[str, Any]], path: Path, title: str) -> None:
 
 
 def _figure(row: dict[str, Any], name: str) -> float:
-    if name == "random":
-        return float(row["random"]["coverage"])
+    if name in ("random", "fixed"):
+        return float(row[name]["coverage"])
     return float(row["unseen"][name])
 
 

@@ -1,7 +1,8 @@
-"""Shared steps of the planner benchmarks (`target_ablation.py`, `learning_curve.py`): train an osvp
-planner, measure it on held-out samples, and play it on unseen meshes beside random views at equal
-view counts. Every step is a subprocess of the installed commands (`osvp`, `datagen`), exactly what a
-user runs, and each result is cached in the output folder, so an interrupted benchmark resumes.
+"""Shared steps of the planner benchmarks (`target_ablation.py`, `learning_curve.py`, `label_margin.py`):
+train an osvp planner, measure it on held-out samples, and play it on unseen meshes beside random views
+and the best fixed view set of its training data at equal view counts. Every step is a subprocess of
+the installed commands (`osvp`, `datagen`), exactly what a user runs, and each result is cached in the
+output folder, so an interrupted benchmark resumes.
 
 Training budget: every run takes the same number of gradient steps (`osvp train --steps`), whatever
 its training set's size, so a point of a learning curve differs from another only by its data.
@@ -84,13 +85,23 @@ def held_out(checkpoint: Path, data: str, decodings: Sequence[str], threads: int
     return dict(found)
 
 
-def unseen(planners: Sequence[str], out: Path, name: str, objects: Path = WATERTIGHT) -> dict[str, Any]:
+def unseen(
+    planners: Sequence[str],
+    out: Path,
+    name: str,
+    objects: Path = WATERTIGHT,
+    fixed_from: str | None = None,
+    extra: Sequence[str] = (),
+) -> dict[str, Any]:
     """`datagen evaluate --json` of ``planners`` on the unseen meshes (rotations 0 and 4, initial
-    views 0, 8, 16, 24: 48 runs per planner), cached as ``out/<name>.json``."""
+    views 0, 8, 16, 24: 48 runs per planner), with the fixed plans of ``fixed_from`` (every planner's
+    lift over the constant plan) and ``extra`` options, cached as ``out/<name>.json``."""
     cache = out / f"{name}.json"
     if cache.exists():
         return dict(json.loads(cache.read_text()))
+    out.mkdir(parents=True, exist_ok=True)
     command = ["datagen", "evaluate", "--objects", str(objects), "--rotations", "0,4", "--initial-views", "0,8,16,24"]
+    command += [*(["--fixed-from", fixed_from] if fixed_from else []), *extra]
     command += ["--json"] + [part for p in planners for part in ("--planner", p)]
     found = json.loads(run(command, out / f"{name}.log"))
     cache.write_text(json.dumps(found, indent=1))
@@ -98,8 +109,9 @@ def unseen(planners: Sequence[str], out: Path, name: str, objects: Path = WATERT
 
 
 def matched(planner: str) -> list[str]:
-    """The planner and random views at its view count, run by run."""
-    return [planner, f"random:match={planner}"]
+    """The planner, random views and the best fixed set at its view count, run by run (fixed needs the
+    evaluation's ``fixed_from``)."""
+    return [planner, f"random:match={planner}", f"fixed:match={planner}"]
 
 
 def row_of(result: dict[str, Any], planner: str) -> dict[str, Any]:

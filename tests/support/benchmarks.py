@@ -11,10 +11,13 @@ BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
 
 
 def load_benchmark(name: str) -> ModuleType:
-    """benchmarks/<name>.py as a module (registered, so its dataclasses pickle and compare)."""
+    """benchmarks/<name>.py as a module (registered, so its dataclasses pickle and compare); its helper
+    modules import by bare name, as when the script runs from its folder."""
     module_name = f"{name}_benchmark"
     if module_name in sys.modules:
         return sys.modules[module_name]
+    if str(BENCHMARKS) not in sys.path:
+        sys.path.append(str(BENCHMARKS))
     spec = importlib.util.spec_from_file_location(module_name, BENCHMARKS / f"{name}.py")
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
