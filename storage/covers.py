@@ -9,7 +9,8 @@ bit masks over the views (bit i = view i).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import itertools
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import numpy.typing as npt
@@ -63,3 +64,26 @@ def nearest_cover(covers: MaskArray, views: int) -> int:
 def mask_views(mask: int) -> tuple[int, ...]:
     """The views of a mask, ascending (the sort key of stored covers)."""
     return tuple(v for v in range(mask.bit_length()) if mask >> v & 1)
+
+
+def listed_problem(
+    listed: MaskArray, case: int, label: int, noun: tuple[str, str], as_good: Callable[[MaskArray], str | None]
+) -> str | None:
+    """What is wrong with the view sets a sample lists beside its label (its minimum covers, or its ties
+    under another objective), or None: the label must be among them, each the label's size, none sharing a
+    view with the case, each as good as the label (``as_good`` says why not), sorted as tuples of views and
+    distinct. ``noun``: what they are, singular and plural."""
+    one, many = noun
+    if label not in listed.tolist():
+        return f"label {mask_views(label)} is not among its {listed.size} listed {many}"
+    if (np.bitwise_count(listed) != label.bit_count()).any():
+        return f"listed {many} differ in size from the label"
+    if ((listed & np.uint64(case)) != 0).any():
+        return f"a listed {one} shares views with the input case"
+    problem = as_good(listed)
+    if problem:
+        return problem
+    ordered = [mask_views(int(c)) for c in listed]
+    if any(a >= b for a, b in itertools.pairwise(ordered)):
+        return f"listed {many} are not sorted and distinct"
+    return None

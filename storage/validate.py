@@ -7,7 +7,6 @@ the row.
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -36,7 +35,7 @@ from schemas.shard import (
     keys_array,
     offsets_array,
 )
-from storage.covers import mask_views, undominated, universe_rows
+from storage.covers import listed_problem, undominated, universe_rows
 from storage.dataset_info import read_info
 from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
 from storage.location import DamagedFile, Location, StorageError, open_location
@@ -348,18 +347,13 @@ def _covers_problem(listed: npt.NDArray[np.uint64], case: int, label: int, rows:
     does not cover U: `_check_coverage` names that)."""
     if rows.size and not ((rows & np.uint64(label)) != 0).all():
         return None
-    if label not in listed.tolist():
-        return f"label {mask_views(label)} is not among its {listed.size} listed minimum covers"
-    if (np.bitwise_count(listed) != label.bit_count()).any():
-        return "listed minimum covers differ in size from the label"
-    if ((listed & np.uint64(case)) != 0).any():
-        return "a listed minimum cover shares views with the input case"
-    if rows.size and not ((listed[:, None] & rows[None, :]) != 0).all():
-        return "a listed minimum cover leaves keys of U uncovered"
-    ordered = [mask_views(int(c)) for c in listed]
-    if any(a >= b for a, b in itertools.pairwise(ordered)):
-        return "listed minimum covers are not sorted and distinct"
-    return None
+
+    def covering(sets: npt.NDArray[np.uint64]) -> str | None:
+        if rows.size and not ((sets[:, None] & rows[None, :]) != 0).all():
+            return "a listed minimum cover leaves keys of U uncovered"
+        return None
+
+    return listed_problem(listed, case, label, ("minimum cover", "minimum covers"), covering)
 
 
 def _check_index(location: Location, commits: list[CommitRecord], schema_version: int | None) -> Iterator[str]:

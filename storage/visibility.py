@@ -9,14 +9,13 @@ exactly as much. That each label is the best there is needs a search: `datagen s
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
 
 from schemas.config import GenerationConfig
-from storage.covers import mask_views
+from storage.covers import listed_problem, mask_views
 
 
 def key_view_masks(per_view: Sequence[npt.NDArray[np.int64]]) -> npt.NDArray[np.uint64]:
@@ -70,16 +69,11 @@ class VisibilityJudge:
     ) -> str | None:
         """What is wrong with one sample's listed ties (every set as good as the label), or None
         (``rows``, the case's set-cover rows, are not read: these labels are not covers of U)."""
-        if label not in listed.tolist():
-            return f"label {mask_views(label)} is not among its {listed.size} listed ties"
-        if (np.bitwise_count(listed) != label.bit_count()).any():
-            return "listed ties differ in size from the label"
-        if ((listed & np.uint64(case)) != 0).any():
-            return "a listed tie shares views with the input case"
         seen = self.seen(case | label)
-        if any(self.seen(case | int(other)) != seen for other in listed.tolist()):
-            return "a listed tie sees another number of keys than the label"
-        ordered = [mask_views(int(c)) for c in listed]
-        if any(a >= b for a, b in itertools.pairwise(ordered)):
-            return "listed ties are not sorted and distinct"
-        return None
+
+        def seeing_as_much(sets: npt.NDArray[np.uint64]) -> str | None:
+            if any(self.seen(case | int(other)) != seen for other in sets.tolist()):
+                return "a listed tie sees another number of keys than the label"
+            return None
+
+        return listed_problem(listed, case, label, ("tie", "ties"), seeing_as_much)
