@@ -676,7 +676,7 @@ def test_relabel_with_the_coverage_tie_break_validates(engine_dataset: EngineDat
     old, new = info_of(engine_dataset.url), info_of(out)
     assert new.config == old.config.model_copy(update={"label_tie_break": "coverage"})
     assert new.config_hash != old.config_hash and new.config_hash == new.config.config_hash()
-    source_line = f"(source: alpha {old.config.alpha}, tie-break index)"
+    source_line = f"(source: cover, alpha {old.config.alpha}, tie-break index)"
     assert any(line.endswith(source_line) for line in result.output.splitlines()), result.output
     checked = shards("validate", out, "--all")
     assert checked.exit_code == 0, checked.output
