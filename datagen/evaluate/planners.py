@@ -120,10 +120,14 @@ class Planner(Protocol):
 class OraclePlanner:
     """The generator's label for the case, under the evaluation's label settings or ``changes`` to them."""
 
-    def __init__(self, config: GenerationConfig | None = None, changes: dict[str, object] | None = None) -> None:
+    def __init__(
+        self, config: GenerationConfig | None = None, changes: dict[str, object] | None = None, name: str = ""
+    ) -> None:
         self.changes = dict(changes or {})
         self.config = oracle_config(config or GenerationConfig(), self.changes)
-        self.name = "oracle" + (":" + ",".join(f"{k}={v}" for k, v in self.changes.items()) if self.changes else "")
+        self.name = name or "oracle" + (
+            ":" + ",".join(f"{k}={v}" for k, v in self.changes.items()) if self.changes else ""
+        )
         self.uses_refinement = needs_refinement(self.config)
         self._configs: dict[int, GenerationConfig] = {}
 
@@ -147,7 +151,8 @@ def oracle_settings(spec: str, argument: str) -> dict[str, object]:
         try:
             changes[name] = SETTING_TYPES.get(name, str)(value)
         except ValueError:
-            raise PlannerError(f"planner {spec!r}: {name}={value} is not a {SETTING_TYPES[name].__name__}") from None
+            kind = "whole number" if SETTING_TYPES[name] is int else "number"
+            raise PlannerError(f"planner {spec!r}: {name}={value} is not a {kind}") from None
     return changes
 
 
@@ -430,7 +435,7 @@ def make_planner(spec: str, context: PlannerContext | None = None) -> Planner:
         raise PlannerError(f"planner {spec!r} names nothing after ':'; choose {planner_help()}")
     base, plus, decoding = name.partition("+")
     if name == "oracle":
-        return OraclePlanner(context.config, oracle_settings(spec, argument) if argument else None)
+        return OraclePlanner(context.config, oracle_settings(spec, argument) if argument else None, spec)
     if name == "all" and not argument:
         return AllPlanner()
     if name in BASELINES:

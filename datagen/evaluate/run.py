@@ -180,15 +180,14 @@ def _evaluate_scenes(
     view_space = build_view_space(config.view_space)
     if max(spec.rotations) >= config.rotations:
         raise InvalidArgument(f"rotation {max(spec.rotations)} is outside the config's 0..{config.rotations - 1}")
+    lifts = lift_baselines(context)
     configs = [refiner_config(config, name) for name in spec.refiners]
     refiners = [make_refiner(c) for c in configs]
     for rotation in spec.rotations:
         scene = build_scene(prepared, rotation, config, view_space)
         refined = [RefinedScene(scene, r, c) for r, c in zip(refiners, configs, strict=True)]
         for initial in spec.initial_views:
-            episodes = _evaluate_situation(
-                scene, refined, initial, planners, spec.budget, outcome, lift_baselines(context)
-            )
+            episodes = _evaluate_situation(scene, refined, initial, planners, spec.budget, outcome, lifts)
             outcome.episodes.extend(episodes)
             if spec.pictures is not None and rotation == spec.rotations[0] and initial == spec.initial_views[0]:
                 from datagen.evaluate.figures import draw_object
@@ -236,7 +235,7 @@ def run_situation(
         episode = None if planner is None else _attempt(planner, situation, budget, failures)
         if episode is not None:
             runs[index] = episode
-    return [_with_lifts(runs[i], planners, runs, situation, budget, lifts) for i in sorted(runs)]
+    return [_with_lifts(runs[i], planners[i], planners, runs, situation, budget, lifts) for i in sorted(runs)]
 
 
 def _situated(planner: Planner, planners: Sequence[Planner], runs: dict[int, Episode]) -> Planner | None:
@@ -249,6 +248,7 @@ def _situated(planner: Planner, planners: Sequence[Planner], runs: dict[int, Epi
 
 def _with_lifts(
     episode: Episode,
+    planner: Planner,
     planners: Sequence[Planner],
     runs: dict[int, Episode],
     situation: Situation,
@@ -257,7 +257,6 @@ def _with_lifts(
 ) -> Episode:
     """The run with the coverage of random views and of the fixed plan at its own view count: from a
     ``random:match``/``fixed:match`` of this planner in the run, else from ``lifts``."""
-    planner = next(p for p in planners if p.name == episode.planner)
     if is_baseline(planner):
         return episode
     found: dict[str, float] = {}

@@ -117,3 +117,34 @@ def test_every_planner_is_judged_against_the_fixed_plan_at_equal_views(training:
     rows = {row["planner"]: row for row in report["rows"]}
     assert rows["fixed:2"]["views_to_tau"] is not None and rows["oracle"]["views_to_tau"] is None
     assert rows["oracle"]["lift_fixed"] is not None and rows["spread:2"]["lift_fixed"] is None
+
+
+@pytest.mark.parametrize(
+    ("spec", "objective", "refines"),
+    [
+        ("oracle", "cover", True),
+        ("oracle:alpha=5", "cover", True),
+        ("oracle:budget=2", "max_coverage", False),
+        ("oracle:tau=0.9", "partial_cover", False),
+        ("oracle:objective=partial_cover,tau=0.8", "partial_cover", False),
+    ],
+)
+def test_an_oracle_labels_under_the_settings_it_names(spec: str, objective: str, refines: bool) -> None:
+    planner = make_planner(spec, PlannerContext())
+    assert planner.name == spec and planner.uses_refinement is refines
+    assert planner.config.label_objective == objective  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("oracle:depth=3", "give label settings as alpha=V, objective=V, budget=V, tau=V"),
+        ("oracle:budget=two", "budget=two is not a whole number"),
+        ("oracle:tau=1.5", "oracle setting tau: Input should be less than or equal to 1"),
+        ("oracle:objective=best", "oracle setting objective: Input should be 'cover', 'max_coverage' or"),
+    ],
+)
+def test_a_bad_oracle_setting_is_one_planner_error(spec: str, message: str) -> None:
+    with pytest.raises(PlannerError) as info:
+        make_planner(spec, PlannerContext())
+    assert message in str(info.value) and "\n" not in str(info.value)
