@@ -208,6 +208,12 @@ class GenerationConfig(_Frozen):
     def num_views(self) -> int:
         return self.view_space.count
 
+    def objective_text(self) -> str:
+        """The label objective with the parameter it reads: ``cover``, ``max_coverage (budget 3)``, ..."""
+        names = {"label_budget": "budget", "label_tau": "tau"}
+        used = [f"{names[name]} {getattr(self, name)}" for name in OBJECTIVE_FIELDS[self.label_objective]]
+        return self.label_objective + (f" ({', '.join(used)})" if used else "")
+
     def tau_keys(self, reference: int) -> int:
         """The least number of keys that is at least `label_tau` of ``reference`` keys (tau read as the
         decimal it was written as, so 0.9 of 1,000 keys is 900, not 901)."""

@@ -207,6 +207,7 @@ def print_stats(stats: DatasetStats) -> None:
         f"{stats.samples} samples in {stats.committed_tasks} committed tasks, {len(stats.failed)} failed; "
         f"{stats.empty_labels} empty labels"
     )
+    say(f"labels: {stats.objective}")
     per_object = _table("object", "samples", "per rotation (rotation:samples)", title="samples per object")
     for name, count in stats.samples_per_object.items():
         rotations = {t.rotation: t.samples for t in stats.samples_per_task if t.object_name == name}
@@ -236,23 +237,25 @@ def print_stats(stats: DatasetStats) -> None:
 
 
 def print_ambiguity(stats: DatasetStats) -> None:
-    """How many minimum covers the (non-empty) labels were chosen from."""
+    """How many minimum covers (another objective: ties) the (non-empty) labels were chosen from."""
     found = stats.ambiguity
     if found is None:
         say("minimum covers: not recorded (schema 1; `datagen shards relabel URL --out URL2` adds them)")
         return
-    table = _table("|S|", "unique minimum cover", "median minimum covers", title="label ambiguity (non-empty labels)")
+    many = "minimum covers" if stats.objective == "cover" else "ties"
+    unique = "unique minimum cover" if stats.objective == "cover" else "no tie"
+    table = _table("|S|", unique, f"median {many}", title="label ambiguity (non-empty labels)")
     for name, share in found.unique.items():
         table.add_row(name, f"{share:.1%}", f"{found.median_covers[name]:.0f}")
     console.print(table)
     spread = _table("per label", "p0", "p5", "p50", "p95", "p100")
-    spread.add_row("minimum covers", *("-" if v is None else f"{v:.0f}" for v in found.count_percentiles.values()))
+    spread.add_row(many, *("-" if v is None else f"{v:.0f}" for v in found.count_percentiles.values()))
     spread.add_row(
         "support views", *("-" if v is None else f"{v:.0f}" for v in found.support_size_percentiles.values())
     )
     console.print(spread)
     if found.capped:
-        say(f"{found.capped} labels have more minimum covers than the cap: their counts are lower bounds")
+        say(f"{found.capped} labels have more {many} than the cap: their counts are lower bounds")
 
 
 def stats(

@@ -28,7 +28,7 @@ from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.setcover import TIE_BREAKS
 from datagen.pipeline.task import TaskResult, TaskSets, label_task, labelled_samples
-from schemas.config import LABEL_OBJECTIVES, OBJECTIVE_FIELDS, GenerationConfig, MissingConfigFile
+from schemas.config import LABEL_OBJECTIVES, GenerationConfig, MissingConfigFile
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import GT_KEYS, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
@@ -149,8 +149,8 @@ def relabel_dataset(
         alpha=alpha,
         source_tie_break=info.config.label_tie_break,
         tie_break=config.label_tie_break,
-        source_objective=objective_text(info.config),
-        objective=objective_text(config),
+        source_objective=info.config.objective_text(),
+        objective=config.objective_text(),
         source_config_hash=info.config_hash,
         config_hash=new_info.config_hash,
         tasks=len(records),
@@ -229,13 +229,6 @@ OPTION_OF_FIELD = {
     "label_budget": "--budget",
     "label_tau": "--tau",
 }
-
-
-def objective_text(config: GenerationConfig) -> str:
-    """The label objective with the parameter it reads: ``cover``, ``max_coverage (budget 3)``, ..."""
-    parameters = {"label_budget": "budget", "label_tau": "tau"}
-    used = [f"{parameters[name]} {getattr(config, name)}" for name in OBJECTIVE_FIELDS[config.label_objective]]
-    return config.label_objective + (f" ({', '.join(used)})" if used else "")
 
 
 def _with_labels(

@@ -65,11 +65,14 @@ class DatasetStats:
     solver_seconds: npt.NDArray[np.float64] = field(repr=False, compare=False)
     step_seconds: StepTotals = field(default_factory=lambda: StepTotals(tasks=0, untimed=0))
     """CPU and wall seconds per task step summed over the commit records that carry them."""
+    objective: str = "cover"
+    """What the labels are (`GenerationConfig.objective_text`: the objective and its parameter)."""
 
     def to_json(self) -> dict[str, Any]:
         """Plain dicts, lists and numbers (integer keys written as strings, as JSON requires)."""
         return {
             "url": self.url,
+            "objective": self.objective,
             "samples": self.samples,
             "committed_tasks": self.committed_tasks,
             "failed_tasks": len(self.failed),
@@ -184,4 +187,5 @@ def dataset_stats(dataset: Dataset) -> DatasetStats:
         points_per_sample=points,
         solver_seconds=seconds,
         step_seconds=step_totals(records),
+        objective=dataset.info.config.objective_text(),
     )
