@@ -68,7 +68,12 @@ def summary(report: dict[str, object], against: str | None) -> list[str]:
     for name, row in rows.items():
         below = sum(1 for m in margins.get(name, {}).values() if m < 0)
         cells = [name, pm(row, "coverage"), pm(row, "views"), pm(row, "movement")]
-        cells += [pm(row, "lift_fixed"), pm(row, "lift"), str(below) if name in margins else "-"]
+        cells += [
+            pm(row, "lift_fixed"),
+            pm(row, "lift_spread"),
+            pm(row, "lift"),
+            str(below) if name in margins else "-",
+        ]
         if tau:
             cells.append(pm(row, "views_to_tau"))
         lines.append("| " + " | ".join(cells) + " |")

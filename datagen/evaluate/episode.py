@@ -10,8 +10,9 @@ Figures (docs/authors-code.md section 8): coverage = distinct observed keys / ke
 all candidate views (the authors' reference count); ``coverage_gt`` = the same over every key of P_gt;
 required views counts the initial view; coverage per view and per metre are the paper's efficiency
 columns (percent per view, percent per metre). A planner that looks at the object also carries the
-coverage of random views and of the best fixed set at its own view count in the same situation: its lifts
-over chance and over the constant plan at equal views. Where the planner can answer for any view count
+coverage of random views, of the best fixed set and of spread views at its own view count in the same
+situation: its lifts over chance, over the constant plan and over a data-free plan that knows only the
+initial view, at equal views. Where the planner can answer for any view count
 (`Plan.at_count`), the run keeps its coverage at every count (``count_curve``): how many views it
 needs to reach a share (`views_to`).
 """
@@ -86,6 +87,8 @@ class Episode:
     baselines themselves)."""
     matched_fixed_coverage: float | None = None
     """Coverage (fraction) of the best fixed set at this run's view count (None without fixed plans)."""
+    matched_spread_coverage: float | None = None
+    """Coverage (fraction) of views spread from the initial view (no data) at this run's view count."""
     count_curve: tuple[float, ...] | None = None
     """Coverage (fraction) of the initial view plus the planner's answer for c new views, c = 0..n-1, where
     the planner answers for any count (None otherwise); no budget applies."""
@@ -111,6 +114,13 @@ class Episode:
         if self.matched_fixed_coverage is None:
             return float("nan")
         return 100.0 * (self.coverage - self.matched_fixed_coverage)
+
+    @property
+    def lift_spread(self) -> float:
+        """Coverage points above spread views at equal views in the same situation (NaN without them)."""
+        if self.matched_spread_coverage is None:
+            return float("nan")
+        return 100.0 * (self.coverage - self.matched_spread_coverage)
 
     def views_to(self, share: float) -> float:
         """Views (the initial one included) the planner needs to see ``share`` of the reference, from its
@@ -149,7 +159,7 @@ class Episode:
         data.update(coverage_curve=[round(c, 6) for c in self.coverage_curve])
         data.update(reference_size=self.reference_size, ground_truth_size=self.ground_truth_size)
         data.update(observed_size=self.observed_size)
-        for name in ("matched_random_coverage", "matched_fixed_coverage"):
+        for name in ("matched_random_coverage", "matched_fixed_coverage", "matched_spread_coverage"):
             matched = getattr(self, name)
             data[name] = None if matched is None else round(100.0 * matched, 6)
         curve = self.count_curve
@@ -165,6 +175,7 @@ class Episode:
             "coverage_gt": 100.0 * self.coverage_gt,
             "lift": self.lift,
             "lift_fixed": self.lift_fixed,
+            "lift_spread": self.lift_spread,
             "views": float(self.views),
             "movement": self.movement,
             "coverage_per_view": self.coverage_per_view,

@@ -19,7 +19,7 @@ probabilities into views its own way (a named decoding). Baselines:
 - ``spread`` / ``spread:K``: views spread far apart from the initial one, needing no data;
 - ``random:match=SPEC``, ``fixed:match=SPEC``, ``spread:match=SPEC``: that baseline with as many views as
   planner SPEC of the same run chose in the same situation (`match_planners`). Every other planner's
-  runs also carry random's and fixed's coverage at their own view count (their lifts);
+  runs also carry random's, fixed's and spread's coverage at their own view count (their lifts);
 - ``all``: every candidate view.
 
 Any other ``NAME:ARG`` is a planner plugin: the `schemas.planning.ScorerFactory` an installed distribution
@@ -462,8 +462,8 @@ def _chooser(kind: str, spec: str, context: PlannerContext) -> Chooser:
 
 
 def baseline_at_count(kind: str, context: PlannerContext) -> MatchedPlanner | None:
-    """The unbound matched baseline ``kind`` (random or fixed) that gives every run its lift, None where
-    it cannot be built (fixed without a training dataset)."""
+    """The unbound matched baseline ``kind`` (random, fixed or spread) that gives every run a lift, None
+    where it cannot be built (fixed without a training dataset)."""
     if kind == "fixed" and context.fixed is None:
         return None
     return MatchedPlanner(f"{kind}:match", "", _chooser(kind, kind, context), kind)

@@ -22,6 +22,7 @@ FIGURES: tuple[tuple[str, str, int], ...] = (
     ("coverage", "coverage %", 2),
     ("lift", "lift vs random %", 2),
     ("lift_fixed", "lift vs fixed %", 2),
+    ("lift_spread", "lift vs spread %", 2),
     ("coverage_gt", "of P_gt %", 2),
     ("views", "views", 2),
     ("movement", "movement m", 2),
@@ -33,7 +34,7 @@ FIGURES: tuple[tuple[str, str, int], ...] = (
     ("views_to_tau", "views to tau", 2),
 )
 """(key of `Episode.figures`, column heading, decimals)."""
-OPTIONAL_FIGURES = frozenset({"lift", "lift_fixed", "views_to_tau"})
+OPTIONAL_FIGURES = frozenset({"lift", "lift_fixed", "lift_spread", "views_to_tau"})
 """Columns left out of a table where no row has a value (no lifts, no fixed plans, no share asked for)."""
 
 K = TypeVar("K", bound=Hashable)

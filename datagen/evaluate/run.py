@@ -5,7 +5,8 @@ same situations. Planners that read neither the refined input nor the generator'
 random:K) run once per situation, under the refiner label "-". A ``KIND:match=SPEC`` runs after the
 planner it matches (whatever the order given) and takes as many views as that planner chose there;
 output keeps the order given. Every planner that looks at the object also gets, run by run, the
-coverage of random views and of the best fixed set (``--fixed-from``) at its own view count: its lifts.
+coverage of random views, of the best fixed set (``--fixed-from``) and of spread views at its own view
+count: its lifts.
 Objects run side by side in worker processes (``workers``); the result does not depend on how many
 (every random draw has its own stream and torch is held to one thread per worker). An object that
 cannot be prepared, or a case the solver cannot label, becomes a failure line and the rest goes on.
@@ -123,8 +124,10 @@ def check_planners(names: Sequence[str], context: PlannerContext | None = None) 
 
 
 def lift_baselines(context: PlannerContext) -> list[MatchedPlanner]:
-    """The baselines every run is compared with at its own view count: random, and fixed where plans exist."""
-    return [b for b in (baseline_at_count(kind, context) for kind in ("random", "fixed")) if b is not None]
+    """The baselines every run is compared with at its own view count: random, spread, and fixed where
+    plans exist."""
+    kinds = ("random", "fixed", "spread")
+    return [b for b in (baseline_at_count(kind, context) for kind in kinds) if b is not None]
 
 
 def evaluate(
@@ -269,7 +272,12 @@ def _with_lifts(
         if baseline.kind not in found:
             bound = baseline.matching(planner).taking(count)
             found[baseline.kind] = run_episode(bound, situation, budget, measure=False).coverage
-    return replace(episode, matched_random_coverage=found.get("random"), matched_fixed_coverage=found.get("fixed"))
+    return replace(
+        episode,
+        matched_random_coverage=found.get("random"),
+        matched_fixed_coverage=found.get("fixed"),
+        matched_spread_coverage=found.get("spread"),
+    )
 
 
 def _attempt(planner: Planner, situation: Situation, budget: Budget, failures: list[str]) -> Episode | None:

@@ -18,6 +18,7 @@ def label_margin() -> ModuleType:
 def row(planner: str, coverage: float, lift_fixed: float | None, obj: str | None = None) -> dict[str, Any]:
     found: dict[str, Any] = {"planner": planner, "coverage": coverage, "coverage_std": 1.0, "views": 2.0}
     found.update(views_std=0.0, movement=0.7, movement_std=0.1, lift=5.0, lift_std=1.0, views_to_tau=None)
+    found.update(lift_spread=None)
     found.update(lift_fixed=lift_fixed, lift_fixed_std=None if lift_fixed is None else 2.0)
     if obj is not None:
         found["object"] = obj
@@ -51,8 +52,10 @@ REPORT = {
 
 def test_the_largest_margin_and_the_share_a_planner_captures(label_margin: ModuleType) -> None:
     lines = label_margin.summary(REPORT, "oracle:budget=1")
-    assert lines[2].startswith("| oracle | 90.00 ± 1.00 | 2.00 ± 0.00 | 0.70 ± 0.10 | -1.00 ± 2.00 | 5.00 ± 1.00 | 1 |")
-    assert "| fixed:2 | 61.00 ± 1.00 |" in lines[5] and lines[5].endswith("| - | 5.00 ± 1.00 | - |")
+    assert lines[2].startswith(
+        "| oracle | 90.00 ± 1.00 | 2.00 ± 0.00 | 0.70 ± 0.10 | -1.00 ± 2.00 | - | 5.00 ± 1.00 | 1 |"
+    )
+    assert "| fixed:2 | 61.00 ± 1.00 |" in lines[5] and lines[5].endswith("| - | - | 5.00 ± 1.00 | - |")
     assert "largest margin over fixed: oracle:budget=1, +14.00 points (lowest object +12.00)" in lines
     assert "osvp+topk=1:x captures 50% of oracle:budget=1's margin over fixed" in lines
 

@@ -99,6 +99,7 @@ def test_every_planner_is_judged_against_the_fixed_plan_at_equal_views(training:
     args = ["evaluate", "--workers", "1", "--objects", str(objects), "--config", str(config)]
     args += ["--initial-views", "0,9", "--fixed-from", training, "--tau", "0.9", "--json"]
     args += ["-p", "oracle", "-p", "fixed:match=oracle", "-p", "oracle:budget=1", "-p", "fixed:2", "-p", "spread:2"]
+    args += ["-p", "spread:match=oracle"]
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     report = json.loads(result.stdout)
@@ -109,6 +110,8 @@ def test_every_planner_is_judged_against_the_fixed_plan_at_equal_views(training:
         assert len(fixed["planned"]) == len(oracle["planned"]) and view not in fixed["planned"]
         assert oracle["matched_fixed_coverage"] == fixed["coverage"]
         assert oracle["lift_fixed"] == pytest.approx(oracle["coverage"] - fixed["coverage"], abs=1e-5)
+        spread = runs["spread:match=oracle", view]
+        assert oracle["matched_spread_coverage"] == spread["coverage"] and oracle["lift_spread"] is not None
         best = runs["oracle:budget=1", view]
         assert len(best["planned"]) == 1 and best["lift_fixed"] >= -1e-9  # the best single view beats any constant
         assert fixed["lift_fixed"] is None and fixed["count_curve"] is not None
