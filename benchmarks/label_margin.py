@@ -13,9 +13,10 @@ plans chosen from the training dataset ``--train`` (`datagen evaluate --fixed-fr
   paper's cover at alpha 10 (the default) and other alphas, max_coverage at budgets 1-4 and
   partial_cover at several tau; every oracle run is judged against the fixed set and random views at
   its own view count in the same situation (evaluate's lifts), so the margin is run by run;
-- ``--planner SPEC`` (repeatable): trained planners, judged the same way; with ``--against ORACLE``
-  the share of that oracle's margin over fixed each one captures; with ``--tau`` the views each needs to
-  see that share of the surface, beside the fixed plan's.
+- ``--planner SPEC`` (repeatable): trained planners, judged the same way; with ``--against ORACLE`` (or
+  ``--against PLANNER=ORACLE``, repeatable) the share of that oracle's margin over fixed each one
+  captures; with ``--tau`` the views each needs to see that share of the surface, beside the fixed
+  plan's.
 
 Printed (and written to ``--out`` as Markdown, with the command): the summary table, then the margin
 over fixed per object for every oracle and planner, and the objective with the largest margin.
@@ -57,7 +58,7 @@ def per_object_margins(report: dict[str, object]) -> dict[str, dict[str, float]]
     return margins
 
 
-def summary(report: dict[str, object], against: str | None) -> list[str]:
+def summary(report: dict[str, object], against: Sequence[str] = ()) -> list[str]:
     rows = {row["planner"]: row for row in report["rows"]}  # type: ignore[attr-defined]
     margins = per_object_margins(report)
     tau = report.get("tau")
@@ -89,11 +90,15 @@ def summary(report: dict[str, object], against: str | None) -> list[str]:
             "",
             f"largest margin over fixed: {best}, {oracles[best]:+.2f} points (lowest object {worst_object:+.2f})",
         ]
-    if against is not None and against in rows and rows[against]["lift_fixed"]:
-        ceiling = rows[against]["lift_fixed"]
+    for pair in against:  # PLANNER=ORACLE, or ORACLE for every trained planner
+        planner, _, oracle = pair.rpartition("=") if "=oracle" in pair else ("", "", pair)
+        if oracle not in rows or not rows[oracle]["lift_fixed"]:
+            continue
+        ceiling = rows[oracle]["lift_fixed"]
         for name, row in rows.items():
-            if not name.startswith(("oracle", "fixed", "spread", "random")) and row["lift_fixed"] is not None:
-                lines.append(f"{name} captures {row['lift_fixed'] / ceiling:.0%} of {against}'s margin over fixed")
+            trained = not name.startswith(("oracle", "fixed", "spread", "random"))
+            if trained and row["lift_fixed"] is not None and (not planner or name == planner):
+                lines.append(f"{name} captures {row['lift_fixed'] / ceiling:.0%} of {oracle}'s margin over fixed")
     return lines
 
 
@@ -121,7 +126,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     parser.add_argument("--train", required=True, help="the training dataset the fixed plans are chosen from")
     parser.add_argument("--planner", action="append", default=[], help="a trained planner spec (repeatable)")
-    parser.add_argument("--against", help="the oracle whose margin the planners' shares are of")
+    parser.add_argument(
+        "--against",
+        action="append",
+        default=[],
+        help="ORACLE (every trained planner) or PLANNER=ORACLE: the oracle whose margin a planner's share is of",
+    )
     parser.add_argument("--objectives", nargs="*", default=ORACLES, help="oracle specs (default: every objective)")
     parser.add_argument("--no-floor", action="store_true", help="leave out the fixed/spread/random rows at 2-6 views")
     parser.add_argument("--tau", type=float, help="also the views each planner needs to see this share")
