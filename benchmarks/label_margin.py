@@ -91,7 +91,8 @@ def summary(report: dict[str, object], against: Sequence[str] = ()) -> list[str]
             f"largest margin over fixed: {best}, {oracles[best]:+.2f} points (lowest object {worst_object:+.2f})",
         ]
     for pair in against:  # PLANNER=ORACLE, or ORACLE for every trained planner
-        planner, _, oracle = pair.rpartition("=") if "=oracle" in pair else ("", "", pair)
+        split = pair.rfind("=oracle")
+        planner, oracle = (pair[:split], pair[split + 1 :]) if split >= 0 else ("", pair)
         if oracle not in rows or not rows[oracle]["lift_fixed"]:
             continue
         ceiling = rows[oracle]["lift_fixed"]

@@ -55,6 +55,9 @@ def test_the_largest_margin_and_the_share_a_planner_captures(label_margin: Modul
     assert label_margin.summary(REPORT, ["osvp+topk=1:x=oracle"])[-1] == (
         "osvp+topk=1:x captures -700% of oracle's margin over fixed"
     )
+    assert label_margin.summary(REPORT, ["osvp+topk=1:x=oracle:budget=1"])[-1] == (
+        "osvp+topk=1:x captures 50% of oracle:budget=1's margin over fixed"
+    )
     assert lines[2].startswith(
         "| oracle | 90.00 ± 1.00 | 2.00 ± 0.00 | 0.70 ± 0.10 | -1.00 ± 2.00 | - | 5.00 ± 1.00 | 1 |"
     )
