@@ -139,11 +139,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, help="write the tables as Markdown here")
     parser.add_argument("--json", type=Path, help="keep evaluate's whole report here")
+    parser.add_argument("--report", type=Path, help="tables from a report kept with --json, without evaluating")
     args = parser.parse_args(argv)
     planners = [*args.objectives, *args.planner, *([] if args.no_floor else FLOOR)]
     extra = ["--workers", str(args.workers), *(["--tau", str(args.tau)] if args.tau is not None else [])]
-    with tempfile.TemporaryDirectory() as folder:
-        report = unseen(planners, Path(folder), "label-margin", fixed_from=args.train, extra=extra)
+    if args.report:
+        report = json.loads(args.report.read_text())
+    else:
+        with tempfile.TemporaryDirectory() as folder:
+            report = unseen(planners, Path(folder), "label-margin", fixed_from=args.train, extra=extra)
     if args.json:
         args.json.write_text(json.dumps(report))
     lines = [
