@@ -63,9 +63,10 @@ def summary(report: dict[str, object], against: Sequence[str] = ()) -> list[str]
     margins = per_object_margins(report)
     tau = report.get("tau")
     head = (
-        "| planner | coverage % | views | movement m | lift over fixed % | lift over random % | objects below fixed |"
+        "| planner | coverage % | views | movement m | lift over fixed % | lift over spread % | lift over random % "
+        "| objects below fixed |"
     )
-    lines = [head + (" views to tau |" if tau else ""), "|---|---|---|---|---|---|---|" + ("---|" if tau else "")]
+    lines = [head + (" views to tau |" if tau else ""), "|---|" * 1 + "---|" * 7 + ("---|" if tau else "")]
     for name, row in rows.items():
         below = sum(1 for m in margins.get(name, {}).values() if m < 0)
         cells = [name, pm(row, "coverage"), pm(row, "views"), pm(row, "movement")]
