@@ -79,11 +79,10 @@ class RefinedScene:
         key = tuple(getattr(config, name) for name in LABEL_FIELDS)
         labellers = self._labellers
         if key not in labellers:
+            coverage = None
             if needs_refinement(config):
                 same = config.alpha == self.config.alpha
                 coverage = self.coverage if same else coverage_table(self.views.sets.refined, config.alpha)
-            else:
-                coverage = Coverage(np.empty(0, dtype=np.int64), np.empty(0, dtype=np.uint64), config.alpha)
             visible = tuple(o.keys for o in self.scene.scan.observations)
             labellers[key] = task_labeller(visible, coverage, config, list_covers=False)
         return labellers[key]

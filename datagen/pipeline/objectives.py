@@ -39,8 +39,9 @@ class CaseLabeller(Protocol):
     def label(self, case: int, threads: int = 1) -> CoverResult: ...
 
 
-LabellerFactory = Callable[[tuple[PackedKeys, ...], Coverage, GenerationConfig, bool], CaseLabeller]
-"""(visibility sets V_i, P_full's coverage table, config, whether to list the label's ties) -> labeller."""
+LabellerFactory = Callable[[tuple[PackedKeys, ...], Coverage | None, GenerationConfig, bool], CaseLabeller]
+"""(visibility sets V_i, P_full's coverage table (None where the objective does not read it: the refined
+views need not exist), config, whether to list the label's ties) -> labeller."""
 
 LABELLERS: dict[str, LabellerFactory] = {}
 """The label objectives by name (`GenerationConfig.label_objective`)."""
@@ -57,7 +58,7 @@ def register_objective(name: str) -> Callable[[LabellerFactory], LabellerFactory
 
 
 def task_labeller(
-    visible: tuple[PackedKeys, ...], coverage: Coverage, config: GenerationConfig, list_covers: bool = True
+    visible: tuple[PackedKeys, ...], coverage: Coverage | None, config: GenerationConfig, list_covers: bool = True
 ) -> CaseLabeller:
     """The labeller of ``config.label_objective`` for one task."""
     try:
@@ -77,8 +78,10 @@ def cover_solver(full_masks: np.ndarray, config: GenerationConfig, list_covers: 
 
 @register_objective("cover")
 def _cover(
-    visible: tuple[PackedKeys, ...], coverage: Coverage, config: GenerationConfig, list_covers: bool
+    visible: tuple[PackedKeys, ...], coverage: Coverage | None, config: GenerationConfig, list_covers: bool
 ) -> CaseLabeller:
+    if coverage is None:
+        raise ValueError("the cover objective labels P_full's keys: give the task's coverage table")
     return cover_solver(coverage.masks, config, list_covers)
 
 
@@ -139,7 +142,7 @@ class VisibilityLabeller:
 
 @register_objective("max_coverage")
 def _max_coverage(
-    visible: tuple[PackedKeys, ...], coverage: Coverage, config: GenerationConfig, list_covers: bool
+    visible: tuple[PackedKeys, ...], coverage: Coverage | None, config: GenerationConfig, list_covers: bool
 ) -> CaseLabeller:
     budget = config.label_budget
     return VisibilityLabeller(visible, config, list_covers, lambda search, reference, seen: budget)
@@ -147,7 +150,7 @@ def _max_coverage(
 
 @register_objective("partial_cover")
 def _partial_cover(
-    visible: tuple[PackedKeys, ...], coverage: Coverage, config: GenerationConfig, list_covers: bool
+    visible: tuple[PackedKeys, ...], coverage: Coverage | None, config: GenerationConfig, list_covers: bool
 ) -> CaseLabeller:
     def views_needed(search: CoverageSearch, reference: int, seen: int) -> int:
         need = config.tau_keys(reference) - seen

@@ -121,7 +121,7 @@ def test_visibility_labels_equal_brute_force_on_the_builtins(changes: dict[str, 
         from datagen.pipeline.coverage import view_masks
 
         key_masks = view_masks(visible)[1]
-        labeller = task_labeller(visible, None, config)  # type: ignore[arg-type]
+        labeller = task_labeller(visible, None, config)
         single = [1 << v for v in range(config.num_views)]
         multi = [c for c in result.cases if c.bit_count() > 1][::4]
         for case in single + multi:
@@ -138,7 +138,7 @@ def test_partial_cover_reaches_tau_with_the_fewest_views() -> None:
     config = fx.config(label_objective="partial_cover", label_tau=0.95)
     result = fx.task_results()[0]
     masks, counts = visibility_masks(result.sets.visible)
-    labeller = task_labeller(result.sets.visible, None, config)  # type: ignore[arg-type]
+    labeller = task_labeller(result.sets.visible, None, config)
     reference = int(counts.sum())
     for view in range(0, 32, 5):
         label = labeller.label(1 << view).label
@@ -150,4 +150,4 @@ def test_every_objective_is_registered_and_an_unknown_one_is_a_label_error() -> 
     assert sorted(LABELLERS) == ["cover", "max_coverage", "partial_cover"]
     config = fx.config().model_copy(update={"label_objective": "best_guess"})
     with pytest.raises(LabelError, match="unknown label objective 'best_guess'; choose one of cover"):
-        task_labeller((), None, config)  # type: ignore[arg-type]
+        task_labeller((), None, config)
