@@ -94,13 +94,17 @@ def summary(report: dict[str, object], against: Sequence[str] = ()) -> list[str]
     for pair in against:  # PLANNER=ORACLE, or ORACLE for every trained planner
         split = pair.rfind("=oracle")
         planner, oracle = (pair[:split], pair[split + 1 :]) if split >= 0 else ("", pair)
-        if oracle not in rows or not rows[oracle]["lift_fixed"]:
+        if oracle not in rows or rows[oracle]["lift_fixed"] is None:
             continue
         ceiling = rows[oracle]["lift_fixed"]
         for name, row in rows.items():
             trained = not name.startswith(("oracle", "fixed", "spread", "random"))
-            if trained and row["lift_fixed"] is not None and (not planner or name == planner):
+            if not trained or row["lift_fixed"] is None or (planner and name != planner):
+                continue
+            if ceiling > 0:
                 lines.append(f"{name} captures {row['lift_fixed'] / ceiling:.0%} of {oracle}'s margin over fixed")
+            else:
+                lines.append(f"{name}: {oracle} has no margin over fixed to capture ({ceiling:+.2f} points)")
     return lines
 
 

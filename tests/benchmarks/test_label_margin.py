@@ -54,7 +54,7 @@ def test_the_largest_margin_and_the_share_a_planner_captures(label_margin: Modul
     lines = label_margin.summary(REPORT, ["oracle:budget=1"])
     assert lines[0].count("|") == lines[1].count("|") == lines[2].count("|") == 9
     assert label_margin.summary(REPORT, ["osvp+topk=1:x=oracle"])[-1] == (
-        "osvp+topk=1:x captures -700% of oracle's margin over fixed"
+        "osvp+topk=1:x: oracle has no margin over fixed to capture (-1.00 points)"
     )
     assert label_margin.summary(REPORT, ["osvp+topk=1:x=oracle:budget=1"])[-1] == (
         "osvp+topk=1:x captures 50% of oracle:budget=1's margin over fixed"
