@@ -50,13 +50,6 @@ from schemas.planning import PLANNER_ENTRY_POINTS, DecodingScorer, ScorerFactory
 CHOICE_THRESHOLD = 0.5
 """A view is chosen when its probability exceeds this (the paper's rule)."""
 
-BUILTIN_PLANNERS = ("oracle", "greedy", "random", "fixed", "spread", "all")
-"""Names a plugin cannot take: ``NAME:ARG`` with one of these is never looked up among the entry points."""
-BUILTIN_HELP = (
-    "oracle, oracle:SETTING=V (alpha, objective, budget, tau), greedy, greedy:K, random, random:K, "
-    "random:match=PLANNER, fixed, fixed:K, fixed:match=PLANNER (with --fixed-from), spread, spread:K, "
-    "spread:match=PLANNER, all"
-)
 ORACLE_SETTINGS = {"alpha": "alpha", "objective": "label_objective", "budget": "label_budget", "tau": "label_tau"}
 """``oracle:SETTING=V``: the label setting each name changes."""
 SETTING_TYPES: dict[str, type] = {"alpha": int, "budget": int, "tau": float}
@@ -73,25 +66,6 @@ class PlannerContext:
     fixed: FixedPlans | None = None
 
 
-def installed_plugins() -> dict[str, EntryPoint]:
-    """The planner plugins of this environment by NAME: entry points of group `PLANNER_ENTRY_POINTS`
-    (the first one of a name; one named like a built-in planner is never used)."""
-    found: dict[str, EntryPoint] = {}
-    for plugin in entry_points(group=PLANNER_ENTRY_POINTS):
-        if plugin.name not in BUILTIN_PLANNERS:
-            found.setdefault(plugin.name, plugin)
-    return found
-
-
-def planner_help(plugins: Sequence[str] | None = None) -> str:
-    """The planners one can name: the built-ins, then ``NAME:ARG`` of each installed plugin."""
-    names = sorted(installed_plugins() if plugins is None else plugins)
-    listed = ", ".join(f"{name}:ARG" for name in names) if names else f"none installed in {PLANNER_ENTRY_POINTS!r}"
-    return f"{BUILTIN_HELP}, or a plugin's NAME:ARG or NAME+DECODING:ARG ({listed})"
-
-
-PLANNER_HELP = planner_help()
-"""`planner_help` of the plugins installed when this module was imported."""
 MATCH_PREFIX = "match="
 """``random:match=SPEC``: the argument that names the planner whose view count a random planner takes."""
 
@@ -373,21 +347,15 @@ _SCORERS: dict[tuple[EntryPoint, str], ViewScorer] = {}
 """The scorers built in this process, by plugin and argument (`plugin_scorer`)."""
 
 
-def plugin_scorer(name: str, argument: str, spec: str) -> ViewScorer:
-    """The scorer planner plugin NAME builds for ARGUMENT (``spec`` names the planner in errors).
+def plugin_scorer(plugin: EntryPoint, argument: str, spec: str) -> ViewScorer:
+    """The scorer a planner plugin's factory builds for ARGUMENT (``spec`` names the planner in errors).
 
     Built once per process and plugin and argument, however many objects and situations ask (a
     checkpoint is read once, not once per object): a file changed under the same path in the same
-    process is not read again. Every failure is one `PlannerError` line: no such plugin (naming the
-    installed ones), a plugin that cannot be imported (naming its distribution), an argument its factory
-    refuses (its `DatagenError` goes through as it is), or a factory that returns no `ViewScorer`.
+    process is not read again. Every failure is one `PlannerError` line: a plugin that cannot be
+    imported (naming its distribution), an argument its factory refuses (its `DatagenError` goes
+    through as it is), or a factory that returns no `ViewScorer`.
     """
-    plugins = installed_plugins()
-    plugin = plugins.get(name)
-    if plugin is None:
-        if name == "osvp":
-            raise PlannerError(f"planner {spec!r} needs the osvp package; install it with `pip install ./osvp`")
-        raise PlannerError(f"unknown planner {spec!r}; choose {planner_help(list(plugins))}")
     key = (plugin, argument)
     if key not in _SCORERS:
         _SCORERS[key] = _build_scorer(plugin, argument, spec)
@@ -424,35 +392,160 @@ def _one_line(exc: BaseException, named: bool = True) -> str:
     return f"{type(exc).__name__}: {line}" if named or not line else line
 
 
+# ---------------------------------------------------------------------------------------------------------
+# the registry: every planner name, built-in or plugin, found by one lookup
+# ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """A planner as named on the command line: ``NAME[+DECODING][:ARGUMENT]``."""
+
+    text: str
+    name: str
+    argument: str = ""
+    decoding: str | None = None
+
+    @classmethod
+    def parse(cls, text: str) -> PlannerSpec:
+        name, colon, argument = text.partition(":")
+        if colon and not argument:
+            raise PlannerError(f"planner {text!r} names nothing after ':'; choose {planner_help()}")
+        base, plus, decoding = name.partition("+")
+        if plus and not decoding:
+            raise PlannerError(f"planner {text!r} names no decoding after '+'; give {base}+DECODING:{argument}")
+        return cls(text, base, argument, decoding if plus else None)
+
+
+PlannerBuilder = Callable[[PlannerSpec, PlannerContext], Planner]
+"""Builds the planner a spec names (refusing an argument or decoding it cannot take: `PlannerError`)."""
+
+
+@dataclass(frozen=True)
+class PlannerKind:
+    """One planner name: how it is built, how it is written, and where it comes from."""
+
+    name: str
+    build: PlannerBuilder
+    usage: str
+    """How to write it, e.g. ``greedy, greedy:K``."""
+    source: str = "built-in"
+
+
+BUILTIN_PLANNERS: dict[str, PlannerKind] = {}
+"""The planners datagen itself provides, by name (`register_planner`); a plugin never takes one's name."""
+
+
+def register_planner(name: str, usage: str) -> Callable[[PlannerBuilder], PlannerBuilder]:
+    """Register a built-in planner kind under ``name`` (as a plugin registers a scorer factory under its
+    entry point's name)."""
+
+    def register(build: PlannerBuilder) -> PlannerBuilder:
+        BUILTIN_PLANNERS[name] = PlannerKind(name, build, usage)
+        return build
+
+    return register
+
+
+def planner_kinds() -> dict[str, PlannerKind]:
+    """Every planner one can name, in one mapping: the built-ins, then each installed plugin (entry
+    points of group `PLANNER_ENTRY_POINTS`, the first of a name; one named like a built-in is never
+    used), imported only when a planner of it is built."""
+    kinds = dict(BUILTIN_PLANNERS)
+    for plugin in entry_points(group=PLANNER_ENTRY_POINTS):
+        if plugin.name not in kinds:
+            dist = plugin.dist
+            source = f"distribution {dist.name} {dist.version}" if dist is not None else "a plugin"
+            kinds[plugin.name] = PlannerKind(plugin.name, _plugin_builder(plugin), f"{plugin.name}:ARG", source)
+    return kinds
+
+
+def installed_plugins() -> dict[str, PlannerKind]:
+    """The planner kinds that come from plugins, by name."""
+    return {name: kind for name, kind in planner_kinds().items() if kind.source != "built-in"}
+
+
+def lookup_planner(name: str, spec: str | None = None) -> PlannerKind:
+    """The planner kind called ``name``, built-in or plugin; one `PlannerError` line naming the choices."""
+    kinds = planner_kinds()
+    if name not in kinds:
+        raise PlannerError(f"unknown planner {spec or name!r}; choose {planner_help(kinds)}")
+    return kinds[name]
+
+
+def planner_help(kinds: dict[str, PlannerKind] | None = None) -> str:
+    """The planners one can name: the built-ins' usages, then ``NAME:ARG`` of each installed plugin."""
+    kinds = planner_kinds() if kinds is None else kinds
+    builtin = ", ".join(kind.usage for kind in kinds.values() if kind.source == "built-in")
+    plugins = sorted(kind.usage for kind in kinds.values() if kind.source != "built-in")
+    listed = ", ".join(plugins) if plugins else f"none installed in {PLANNER_ENTRY_POINTS!r}"
+    return f"{builtin}, or a plugin's NAME:ARG or NAME+DECODING:ARG ({listed})"
+
+
 def make_planner(spec: str, context: PlannerContext | None = None) -> Planner:
     """The planner a command-line name stands for; `PlannerError` names the choices otherwise.
 
     A ``KIND:match=SPEC`` comes back unbound: `match_planners` binds it to a planner of the same run.
     """
-    context = context or PlannerContext()
-    name, colon, argument = spec.partition(":")
-    if colon and not argument:
-        raise PlannerError(f"planner {spec!r} names nothing after ':'; choose {planner_help()}")
-    base, plus, decoding = name.partition("+")
-    if name == "oracle":
-        return OraclePlanner(context.config, oracle_settings(spec, argument) if argument else None, spec)
-    if name == "all" and not argument:
-        return AllPlanner()
-    if name in BASELINES:
-        choose = _chooser(name, spec, context)
-        if argument.startswith(MATCH_PREFIX):
-            if argument == MATCH_PREFIX:
-                raise PlannerError(f"planner {spec!r} names no planner after '='; give {name}:match=PLANNER")
-            return MatchedPlanner(spec, argument.removeprefix(MATCH_PREFIX), choose, name)
-        total = _view_count(spec, argument) if argument else None
-        return RandomPlanner(total) if name == "random" else BaselinePlanner(name, choose, total)
-    if name == "greedy":
-        return GreedyPlanner(_view_count(spec, argument) if argument else None)
-    if argument and base not in BUILTIN_PLANNERS:
-        if plus and not decoding:
-            raise PlannerError(f"planner {spec!r} names no decoding after '+'; give {base}+DECODING:{argument}")
-        return ScoredPlanner(spec, plugin_scorer(base, argument, spec), decoding=decoding or None)
-    raise PlannerError(f"unknown planner {spec!r}; choose {planner_help()}")
+    parsed = PlannerSpec.parse(spec)
+    return lookup_planner(parsed.name, spec).build(parsed, context or PlannerContext())
+
+
+def _plugin_builder(plugin: EntryPoint) -> PlannerBuilder:
+    def build(spec: PlannerSpec, context: PlannerContext) -> Planner:
+        if not spec.argument:
+            raise PlannerError(f"planner {spec.text!r}: give {plugin.name}:ARG (for example a checkpoint)")
+        return ScoredPlanner(spec.text, plugin_scorer(plugin, spec.argument, spec.text), decoding=spec.decoding)
+
+    return build
+
+
+def _plain(spec: PlannerSpec, usage: str) -> None:
+    """Refuse a decoding: only scored planners have decodings."""
+    if spec.decoding is not None:
+        raise PlannerError(f"planner {spec.text!r}: only a plugin's scorer takes +DECODING; write {usage}")
+
+
+@register_planner("oracle", "oracle, oracle:SETTING=V (alpha, objective, budget, tau)")
+def _oracle(spec: PlannerSpec, context: PlannerContext) -> Planner:
+    _plain(spec, "oracle")
+    changes = oracle_settings(spec.text, spec.argument) if spec.argument else None
+    return OraclePlanner(context.config, changes, spec.text)
+
+
+@register_planner("greedy", "greedy, greedy:K")
+def _greedy(spec: PlannerSpec, context: PlannerContext) -> Planner:
+    _plain(spec, "greedy:K")
+    return GreedyPlanner(_view_count(spec.text, spec.argument) if spec.argument else None)
+
+
+def _baseline(kind: str, choose: Callable[[PlannerSpec, PlannerContext], Chooser]) -> PlannerBuilder:
+    def build(spec: PlannerSpec, context: PlannerContext) -> Planner:
+        _plain(spec, f"{kind}:K")
+        chooser = choose(spec, context)
+        if spec.argument.startswith(MATCH_PREFIX):
+            wanted = spec.argument.removeprefix(MATCH_PREFIX)
+            if not wanted:
+                raise PlannerError(f"planner {spec.text!r} names no planner after '='; give {kind}:match=PLANNER")
+            return MatchedPlanner(spec.text, wanted, chooser, kind)
+        total = _view_count(spec.text, spec.argument) if spec.argument else None
+        return RandomPlanner(total) if kind == "random" else BaselinePlanner(kind, chooser, total)
+
+    return build
+
+
+register_planner("random", "random, random:K, random:match=PLANNER")(_baseline("random", lambda s, c: random_views))
+register_planner("fixed", "fixed, fixed:K, fixed:match=PLANNER (with --fixed-from)")(
+    _baseline("fixed", lambda s, c: fixed_chooser(c.fixed, s.text))
+)
+register_planner("spread", "spread, spread:K, spread:match=PLANNER")(_baseline("spread", lambda s, c: spread_chooser))
+
+
+@register_planner("all", "all")
+def _all(spec: PlannerSpec, context: PlannerContext) -> Planner:
+    if spec.argument or spec.decoding:
+        raise PlannerError(f"planner {spec.text!r}: 'all' takes no argument; write all")
+    return AllPlanner()
 
 
 def _chooser(kind: str, spec: str, context: PlannerContext) -> Chooser:

@@ -15,7 +15,6 @@ from datagen.errors import DatagenError, PlannerError
 from datagen.evaluate import planners as planners_module
 from datagen.evaluate.episode import run_episode
 from datagen.evaluate.planners import (
-    PLANNER_HELP,
     AllPlanner,
     GreedyPlanner,
     OraclePlanner,
@@ -23,6 +22,7 @@ from datagen.evaluate.planners import (
     RandomPlanner,
     ScoredPlanner,
     make_planner,
+    planner_help,
 )
 from datagen.evaluate.scene import Scene
 from datagen.evaluate.situation import RefinedScene, Situation
@@ -331,11 +331,26 @@ def test_make_planner_resolves(spec_text: str, kind: type, total: int | None, us
         assert planner.total_views == total  # type: ignore[attr-defined]
 
 
-@pytest.mark.parametrize("spec_text", ["", "nope", "Oracle", "all:3", "osvp", "greedy4", "cheat:2"])
+@pytest.mark.parametrize("spec_text", ["", "nope", "Oracle", "greedy4", "cheat:2"])
 def test_make_planner_unknown_names_the_choices(spec_text: str) -> None:
     with pytest.raises(PlannerError, match="unknown planner") as info:
         make_planner(spec_text)
-    assert PLANNER_HELP in str(info.value) and "\n" not in str(info.value)
+    assert planner_help() in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("spec_text", "message"),
+    [
+        ("all:3", "planner 'all:3': 'all' takes no argument; write all"),
+        ("greedy+size:3", "planner 'greedy+size:3': only a plugin's scorer takes +DECODING; write greedy:K"),
+        ("osvp", "planner 'osvp': give osvp:ARG (for example a checkpoint)"),
+        ("random:", "planner 'random:' names nothing after ':'"),
+    ],
+)
+def test_make_planner_refuses_what_a_planner_cannot_take(spec_text: str, message: str) -> None:
+    with pytest.raises(PlannerError) as info:
+        make_planner(spec_text)
+    assert str(info.value).startswith(message) and "\n" not in str(info.value)
 
 
 @pytest.mark.parametrize("spec_text", ["greedy:0", "greedy:x", "greedy:-2", "random:0", "random:1.5", "random:two"])
@@ -357,9 +372,9 @@ def test_make_planner_missing_checkpoint(tmp_path: Path) -> None:
 
 
 def test_make_planner_without_the_osvp_package(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(planners_module, "installed_plugins", dict)  # no planner plugin installed
+    monkeypatch.setattr(planners_module, "entry_points", lambda group: [])  # no planner plugin installed
     checkpoint = tmp_path / "model.pt"
     checkpoint.write_bytes(b"not really a checkpoint")
-    with pytest.raises(PlannerError, match="needs the osvp package; install it") as info:
+    with pytest.raises(PlannerError, match="unknown planner 'osvp:") as info:
         make_planner(f"osvp:{checkpoint}")
     assert "\n" not in str(info.value)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import importlib.metadata
 import itertools
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +30,8 @@ from datagen.pipeline.objects.spec import ObjectSpec
 from datagen.pipeline.refine import RefineRequest, make_refiner
 from datagen.pipeline.refine.base import ViewBands, band_keys
 from datagen.pipeline.refine.freespace import DepthBuffers, cropped_depth, depth_buffer, sensor_empty
-from datagen.pipeline.refine.poco import network, spatial
 from datagen.pipeline.refine.poco import refiner as poco_refiner
+from datagen.pipeline.refine.poco import spatial
 from datagen.pipeline.refine.poco.inputs import DECODE_CHUNK, query_keys
 from datagen.pipeline.refine.poco.network import PocoModel, neighbour_distances
 from datagen.pipeline.refine.poco.refiner import BUILTIN_WEIGHTS, PocoRefiner
@@ -162,7 +163,7 @@ def test_neighbour_distances_is_bit_identical_to_norm() -> None:
 
 @pytest.mark.parametrize("batch", [1, 2])
 def test_encoder_inference_is_bit_identical_to_training_ops(batch: int) -> None:
-    """The encoder's fast operations (inference) against the original ones (FAST_OPS off, and autograd on)."""
+    """The encoder's fast operations (inference) against the original ones (``fast=False``, and autograd on)."""
     model = shipped_model()
     generator = torch.Generator().manual_seed(1)
     points = torch.randn(batch, 3, 3000, generator=generator)
@@ -171,17 +172,42 @@ def test_encoder_inference_is_bit_identical_to_training_ops(batch: int) -> None:
     features = model.features(points, directions)
     with torch.inference_mode():
         fast = model.encode(points, features, tables)
-    previous = network.FAST_OPS
-    network.FAST_OPS = False
-    try:
-        with torch.no_grad():
-            original = model.encode(points, features, tables)
-    finally:
-        network.FAST_OPS = previous
+    with torch.no_grad():
+        original = model.encode(points, features, tables, fast=False)
     with torch.enable_grad():
         training = model.encode(points, features.clone().requires_grad_(True), tables).detach()
     assert torch.equal(fast, original)
     assert torch.equal(fast, training)
+
+
+def test_two_refiners_with_other_fast_paths_in_two_threads_each_get_their_own(tmp_path: Path) -> None:
+    """The fast path belongs to the refiner, not to the process: the original and the fast refiner,
+    sharing one model, run side by side in two threads, each with its own operations throughout (every
+    encode call records which it ran), and each gives exactly what it gives alone."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    original, fast = refiners()
+    ran: set[tuple[str, bool]] = set()
+    encode = PocoModel.encode
+
+    def recording(
+        self: PocoModel, points: Tensor, features: Tensor, tables: dict[str, Tensor], fast: bool = True
+    ) -> Tensor:
+        ran.add((threading.current_thread().name, fast))
+        return encode(self, points, features, tables, fast)
+
+    spec = spec_of(tmp_path, "builtin:mug")
+    scan = scan_task(prepare_object(spec, CONFIG), 2, CONFIG, VIEW_SPACE)
+    requests = [RefineRequest(scan.observations[v], CONFIG.seed, spec.object_id, 2) for v in (0, 9, 17, 25)]
+    with single_threaded_blas(), fixed_torch_threads():
+        alone = [refiner.refine(requests) for refiner in (original, fast)]
+        with pytest.MonkeyPatch.context() as patch, ThreadPoolExecutor(max_workers=2) as pool:
+            patch.setattr(PocoModel, "encode", recording)
+            together = list(pool.map(lambda refiner: refiner.refine(requests), (original, fast)))
+    assert {choice for _, choice in ran} == {True, False}
+    assert all(len({choice for name, choice in ran if name == thread}) == 1 for thread, _ in ran)
+    for by_itself, beside in zip(alone, together, strict=True):
+        assert all(np.array_equal(a, b) for a, b in zip(by_itself, beside, strict=True))
 
 
 @pytest.fixture(scope="module")

@@ -20,12 +20,13 @@ view index. ``datagen evaluate`` reaches these as ``osvp+NAME:FILE`` through
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-DECODINGS = ("threshold", "tuned", "size", "topk")
 PAPER_THRESHOLD = 0.5
 TINY = 0.05
 """``size`` selects nothing when every free view's probability is below this."""
@@ -48,32 +49,106 @@ class Decoding:
         return self.name
 
 
-def parse_decoding(text: str, tuned_threshold: float | None = None) -> Decoding:
-    """``threshold``, ``threshold=T``, ``tuned``, ``size`` or ``topk=K``; `ValueError` (one line, with
-    the choices) for anything else, and for ``tuned`` when no tuned threshold is known."""
-    name, equals, argument = text.partition("=")
-    choices = ", ".join(DECODINGS)
-    if name == "threshold":
-        value = _number(argument, text) if equals else PAPER_THRESHOLD
+class DecodingRule(Protocol):
+    """One decoding: the number its spec carries, and the views it takes."""
+
+    def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
+        """The decoding's number (threshold, K) from its spec's ``=ARGUMENT`` (None: none was given)."""
+        ...
+
+    def take(
+        self, p: npt.NDArray[np.float64], free: npt.NDArray[np.bool_], value: float | None
+    ) -> npt.NDArray[np.bool_]:
+        """(S, n) bools: the views taken, among the free ones, for (S, n) probabilities."""
+        ...
+
+
+DECODING_REGISTRY: dict[str, DecodingRule] = {}
+"""The decodings by name, in registration order (`register_decoding`)."""
+
+
+def register_decoding(name: str) -> Callable[[type[DecodingRule]], type[DecodingRule]]:
+    """Register a decoding: a new one is one decorated class with `value` and `take`."""
+
+    def register(rule: type[DecodingRule]) -> type[DecodingRule]:
+        DECODING_REGISTRY[name] = rule()
+        return rule
+
+    return register
+
+
+def _no_value(text: str, argument: str | None) -> None:
+    if argument is not None:
+        name = text.partition("=")[0]
+        raise ValueError(f"decoding {text!r}: {name!r} takes no value; choose {', '.join(DECODING_REGISTRY)}")
+
+
+@register_decoding("threshold")
+class _Threshold:
+    def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
+        value = _number(argument, text) if argument is not None else PAPER_THRESHOLD
         if not 0.0 <= value <= 1.0:
             raise ValueError(f"decoding {text!r}: the threshold must lie in [0, 1]")
-        return Decoding("threshold", value)
-    if name == "topk" and equals:
+        return value
+
+    def take(
+        self, p: npt.NDArray[np.float64], free: npt.NDArray[np.bool_], value: float | None
+    ) -> npt.NDArray[np.bool_]:
+        return (p > float(value if value is not None else PAPER_THRESHOLD)) & free
+
+
+@register_decoding("tuned")
+class _Tuned(_Threshold):
+    def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
+        _no_value(text, argument)
+        if tuned_threshold is None:
+            raise ValueError("decoding 'tuned': this checkpoint holds no tuned threshold (trained by an older osvp)")
+        return float(tuned_threshold)
+
+
+@register_decoding("size")
+class _Size:
+    def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
+        _no_value(text, argument)
+        return None
+
+    def take(
+        self, p: npt.NDArray[np.float64], free: npt.NDArray[np.bool_], value: float | None
+    ) -> npt.NDArray[np.bool_]:
+        counts = np.floor(np.where(free, p, 0.0).sum(axis=1) + 0.5).astype(np.int64)
+        peak = np.where(free, p, -1.0).max(axis=1, initial=-1.0)
+        return _most_probable(p, free, np.where(peak < TINY, 0, np.maximum(counts, 1)))
+
+
+@register_decoding("topk")
+class _TopK:
+    def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
+        if argument is None:
+            raise ValueError("decoding 'topk' needs its K, e.g. topk=4")
         k = _number(argument, text)
         if k < 1 or k != int(k):
             raise ValueError(f"decoding {text!r}: K must be a whole number >= 1")
-        return Decoding("topk", float(k))
-    if name == "topk":
-        raise ValueError("decoding 'topk' needs its K, e.g. topk=4")
-    if equals:
-        raise ValueError(f"decoding {text!r}: {name!r} takes no value; choose {choices}")
-    if name == "size":
-        return Decoding("size")
-    if name == "tuned":
-        if tuned_threshold is None:
-            raise ValueError("decoding 'tuned': this checkpoint holds no tuned threshold (trained by an older osvp)")
-        return Decoding("tuned", float(tuned_threshold))
-    raise ValueError(f"unknown decoding {text!r}; choose {choices}")
+        return float(k)
+
+    def take(
+        self, p: npt.NDArray[np.float64], free: npt.NDArray[np.bool_], value: float | None
+    ) -> npt.NDArray[np.bool_]:
+        return _most_probable(p, free, np.full(p.shape[0], int(value or 0), dtype=np.int64))
+
+
+DECODINGS = tuple(DECODING_REGISTRY)
+"""The registered decodings' names."""
+
+
+def parse_decoding(text: str, tuned_threshold: float | None = None) -> Decoding:
+    """``threshold``, ``threshold=T``, ``tuned``, ``size``, ``topk=K`` or another registered decoding;
+    `ValueError` (one line, with the choices) for anything else, and for ``tuned`` when no tuned
+    threshold is known."""
+    name, equals, argument = text.partition("=")
+    rule = DECODING_REGISTRY.get(name)
+    if rule is None:
+        raise ValueError(f"unknown decoding {text!r}; choose {', '.join(DECODING_REGISTRY)}")
+    return Decoding(name, rule.value(text, argument if equals else None, tuned_threshold))
 
 
 def _number(argument: str, text: str) -> float:
@@ -97,18 +172,9 @@ def select_views(
         raise ValueError(f"probabilities {p.shape} and view state {state.shape} must be one (n,) or (S, n) shape")
     if p.ndim == 1:
         return select_views(p[None], state[None], chosen)[0]
-    free = ~state
-    if chosen.name in ("threshold", "tuned"):
-        return (p > float(chosen.value if chosen.value is not None else PAPER_THRESHOLD)) & free
-    if chosen.name == "size":
-        counts = np.floor(np.where(free, p, 0.0).sum(axis=1) + 0.5).astype(np.int64)
-        peak = np.where(free, p, -1.0).max(axis=1, initial=-1.0)
-        counts = np.where(peak < TINY, 0, np.maximum(counts, 1))
-    elif chosen.name == "topk":
-        counts = np.full(p.shape[0], int(chosen.value or 0), dtype=np.int64)
-    else:
-        raise ValueError(f"unknown decoding {chosen.name!r}; choose {', '.join(DECODINGS)}")
-    return _most_probable(p, free, counts)
+    if chosen.name not in DECODING_REGISTRY:
+        raise ValueError(f"unknown decoding {chosen.name!r}; choose {', '.join(DECODING_REGISTRY)}")
+    return DECODING_REGISTRY[chosen.name].take(p, ~state, chosen.value)
 
 
 def _most_probable(

@@ -15,16 +15,14 @@ ties: the per-view marginals over the minimum covers, the covers themselves, or 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 import torch
 import torch.nn.functional as F
 
 DEFAULT_LAMBDA = 1.25
-
-TARGETS = ("label", "marginal", "mincover", "support")
-AMBIGUITY_TARGETS = ("marginal", "mincover", "support")
-"""Targets that need every sample's minimum covers (schema version 2)."""
 
 
 def _check(logits: torch.Tensor, targets: torch.Tensor, lambda_: float) -> None:
@@ -114,21 +112,69 @@ class TargetBatch(Protocol):
     def cover_mask(self) -> torch.Tensor | None: ...
 
 
-def target_loss(target: str, logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
-    """The loss of ``target`` (one of `TARGETS`) on a batch, on the logits' device."""
+TargetLoss = Callable[[torch.Tensor, TargetBatch, float], torch.Tensor]
+"""(logits, batch, lambda) -> the loss, on the logits' device."""
 
-    def need(value: torch.Tensor | None, what: str) -> torch.Tensor:
-        if value is None:
-            raise ValueError(f"target {target!r} needs the batch's {what} (a version-2 dataset)")
-        return value.to(logits.device)
 
+@dataclass(frozen=True)
+class Target:
+    """A training target: its loss, and whether it reads the samples' ties (a version-2 dataset)."""
+
+    name: str
+    loss: TargetLoss
+    needs_ties: bool
+
+
+TARGET_REGISTRY: dict[str, Target] = {}
+"""The targets `osvp train --target` can name, in registration order (`register_target`)."""
+
+
+def register_target(name: str, needs_ties: bool = True) -> Callable[[TargetLoss], TargetLoss]:
+    """Register a target: a new one is one decorated function of (logits, batch, lambda)."""
+
+    def register(loss: TargetLoss) -> TargetLoss:
+        TARGET_REGISTRY[name] = Target(name, loss, needs_ties)
+        return loss
+
+    return register
+
+
+def _need(target: str, value: torch.Tensor | None, what: str, logits: torch.Tensor) -> torch.Tensor:
+    if value is None:
+        raise ValueError(f"target {target!r} needs the batch's {what} (a version-2 dataset)")
+    return value.to(logits.device)
+
+
+@register_target("label", needs_ties=False)
+def _label(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
+    return sc_loss(logits, batch.labels.to(logits.device), lambda_)
+
+
+@register_target("marginal")
+def _marginal(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
+    return marginal_loss(logits, _need("marginal", batch.marginals, "marginals", logits), lambda_)
+
+
+@register_target("mincover")
+def _mincover(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
+    covers = _need("mincover", batch.covers, "covers", logits)
+    return mincover_loss(logits, covers, _need("mincover", batch.cover_mask, "cover mask", logits), lambda_)
+
+
+@register_target("support")
+def _support(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     labels = batch.labels.to(logits.device)
-    if target == "label":
-        return sc_loss(logits, labels, lambda_)
-    if target == "marginal":
-        return marginal_loss(logits, need(batch.marginals, "marginals"), lambda_)
-    if target == "mincover":
-        return mincover_loss(logits, need(batch.covers, "covers"), need(batch.cover_mask, "cover mask"), lambda_)
-    if target == "support":
-        return support_loss(logits, labels, need(batch.support, "support"), lambda_)
-    raise ValueError(f"unknown target {target!r}; choose {', '.join(TARGETS)}")
+    return support_loss(logits, labels, _need("support", batch.support, "support", logits), lambda_)
+
+
+TARGETS = tuple(TARGET_REGISTRY)
+"""The registered targets' names."""
+AMBIGUITY_TARGETS = tuple(name for name, target in TARGET_REGISTRY.items() if target.needs_ties)
+"""Targets that need every sample's minimum covers (schema version 2)."""
+
+
+def target_loss(target: str, logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
+    """The loss of the registered ``target`` on a batch, on the logits' device."""
+    if target not in TARGET_REGISTRY:
+        raise ValueError(f"unknown target {target!r}; choose {', '.join(TARGET_REGISTRY)}")
+    return TARGET_REGISTRY[target].loss(logits, batch, lambda_)

@@ -136,10 +136,12 @@ def forward_logits(
     generator: torch.Generator,
     device: torch.device | str,
     knn_backend: KnnBackend = "auto",
+    fast: bool = True,
 ) -> Tensor:
-    """Logits (B, 2, M) of the queries in one differentiable forward (training, test-time fine-tuning)."""
+    """Logits (B, 2, M) of the queries in one differentiable forward (training, test-time fine-tuning;
+    ``fast=False``: the encoder's original operations, `PocoModel.encode`)."""
     points, features, tables, queries = _on_device(model, points, directions, queries, generator, device, knn_backend)
-    logits: Tensor = model(points, features, tables, queries, tables["proj_indices"])
+    logits: Tensor = model(points, features, tables, queries, tables["proj_indices"], fast=fast)
     return logits
 
 
@@ -168,7 +170,7 @@ def predict_probs(
     points, dirs, q = network_tensors(inputs[pick], directions[pick], queries)
     with torch.inference_mode() if fast else torch.no_grad():
         points, features, tables, q = _on_device(model, points, dirs, q, generator, device, knn_backend)
-        latents = model.encode(points, features, tables)
+        latents = model.encode(points, features, tables, fast)
         if fast:
             logits = model.decode_inference(latents, points, q, tables["proj_indices"], DECODE_CHUNK)
         else:

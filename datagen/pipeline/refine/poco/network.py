@@ -26,13 +26,9 @@ _INFERENCE_BUDGET = 1 << 19
 """The same for `PocoModel.decode_inference`: 2 MiB of float32 per activation, so a chunk's activations
 stay in a core's L2 cache (measured on the 2-core CPU: 8192-query chunks of the small preset, 16 MiB
 each, ran 2.4x slower than 1024-query ones, with bit-identical logits)."""
-FAST_OPS = True
-"""Use the bit-identical faster operations of `neighbour_distances`, `neighbour_max` and
-`FKAConv._norm_relu`; False runs the original ones (torch's norm, max with indices, instance_norm),
-for benchmarks and the tests that compare the two (`PocoRefiner(fast=False)` sets it while it runs)."""
 
 
-def neighbour_distances(local: Tensor) -> Tensor:
+def neighbour_distances(local: Tensor, fast: bool = True) -> Tensor:
     """Euclidean lengths of local offsets (B, 3, M, K) over the coordinate axis -> (B, M, K).
 
     Bit-identical to ``local.norm(dim=1)``, which on CPU runs a scalar loop for this layout (4 ms for
@@ -40,9 +36,10 @@ def neighbour_distances(local: Tensor) -> Tensor:
     ``(x*x + y*y) + z*z`` in float32, in this order, without fused multiply-adds, then takes the
     correctly rounded root (``std::sqrt``); here the sum is the same float32 vector ops and the root is
     numpy's, the correctly rounded hardware one. torch's vectorised ``sqrt`` is not correctly rounded
-    (it differs in ~0.6 % of float32 values), hence numpy. Other dtypes, devices or shapes use ``norm``.
+    (it differs in ~0.6 % of float32 values), hence numpy. Other dtypes, devices or shapes, and
+    ``fast=False`` (the original operations, for the tests that compare the two), use ``norm``.
     """
-    if not FAST_OPS or local.device.type != "cpu" or local.dtype != torch.float32 or local.shape[1] != 3:
+    if not fast or local.device.type != "cpu" or local.dtype != torch.float32 or local.shape[1] != 3:
         return local.norm(dim=1)
     square = local * local
     total = (square[:, 0] + square[:, 1]).add_(square[:, 2])
@@ -65,18 +62,18 @@ def gather_neighbours(values: Tensor, index: Tensor) -> Tensor:
     return torch.gather(values, 2, flat).view(batch, channels, *index.shape[1:])
 
 
-def neighbour_max(values: Tensor, keepdim: bool = False) -> Tensor:
-    """Max of (B, C, M, K) over K. Without autograd ``amax`` (2x faster: no argmax); with it
-    ``max(...).values``, whose gradient goes to one of tied maxima where amax's would be split
-    among them (ReLU zeros tie often). The values are the same either way."""
-    if not FAST_OPS or (torch.is_grad_enabled() and values.requires_grad):
+def neighbour_max(values: Tensor, keepdim: bool = False, fast: bool = True) -> Tensor:
+    """Max of (B, C, M, K) over K. Without autograd ``amax`` (2x faster: no argmax); with it, or with
+    ``fast=False``, ``max(...).values``, whose gradient goes to one of tied maxima where amax's would be
+    split among them (ReLU zeros tie often). The values are the same either way."""
+    if not fast or (torch.is_grad_enabled() and values.requires_grad):
         return values.max(dim=3, keepdim=keepdim).values
     return values.amax(dim=3, keepdim=keepdim)
 
 
-def max_pool(values: Tensor, index: Tensor) -> Tensor:
+def max_pool(values: Tensor, index: Tensor, fast: bool = True) -> Tensor:
     """Max of (B, C, N) over each neighbourhood of index (B, M, K) -> (B, C, M)."""
-    return neighbour_max(gather_neighbours(values, index))
+    return neighbour_max(gather_neighbours(values, index), fast=fast)
 
 
 def upsample_nearest(values: Tensor, index: Tensor) -> Tensor:
@@ -109,11 +106,12 @@ class FKAConv(nn.Module):
         self.bn1 = nn.InstanceNorm2d(kernel_size, affine=True)
         self.bn2 = nn.InstanceNorm2d(kernel_size, affine=True)
 
-    def forward(self, x: Tensor, pos: Tensor, support: Tensor, index: Tensor) -> Tensor:
-        """x (B, Cin, N), pos (B, 3, N), support (B, 3, M), index (B, M, K) into pos -> (B, Cout, M)."""
+    def forward(self, x: Tensor, pos: Tensor, support: Tensor, index: Tensor, fast: bool = True) -> Tensor:
+        """x (B, Cin, N), pos (B, 3, N), support (B, 3, M), index (B, M, K) into pos -> (B, Cout, M);
+        ``fast=False`` runs the original operations (the same values)."""
         batch, _, m, k = (*support.shape, index.shape[2])
         local = gather_neighbours(pos, index) - support.unsqueeze(3)  # (B, 3, M, K)
-        distances = neighbour_distances(local.detach())  # (B, M, K)
+        distances = neighbour_distances(local.detach(), fast)  # (B, M, K)
         if self.training:
             # Running mean of the neighbourhood radius, updated before use (as upstream).
             mean_radius = distances.max(dim=2).values.mean()
@@ -129,11 +127,11 @@ class FKAConv(nn.Module):
         # InstanceNorm statistics span every neighbourhood of the cloud (per sample and channel).
         use_norm = k > 1
         mat = self.fc1(local)
-        mat = self._norm_relu(self.bn1, mat) if use_norm else F.relu(mat)
-        pooled = neighbour_max(mat * weight, keepdim=True).expand(-1, -1, -1, k)
+        mat = self._norm_relu(self.bn1, mat, fast) if use_norm else F.relu(mat)
+        pooled = neighbour_max(mat * weight, keepdim=True, fast=fast).expand(-1, -1, -1, k)
         mat = self.fc2(torch.cat([mat, pooled], dim=1))
-        mat = self._norm_relu(self.bn2, mat) if use_norm else F.relu(mat)
-        pooled = neighbour_max(mat * weight, keepdim=True).expand(-1, -1, -1, k)
+        mat = self._norm_relu(self.bn2, mat, fast) if use_norm else F.relu(mat)
+        pooled = neighbour_max(mat * weight, keepdim=True, fast=fast).expand(-1, -1, -1, k)
         mat = F.relu(self.fc3(torch.cat([mat, pooled], dim=1))) * weight  # (B, S, M, K)
 
         # Project neighbour features on the slots: (B, M, Cin, K) @ (B, M, K, S) -> (B, M, Cin, S).
@@ -143,12 +141,12 @@ class FKAConv(nn.Module):
         return out.transpose(1, 2)
 
     @staticmethod
-    def _norm_relu(norm: nn.InstanceNorm2d, mat: Tensor) -> Tensor:
+    def _norm_relu(norm: nn.InstanceNorm2d, mat: Tensor, fast: bool = True) -> Tensor:
         """ReLU(norm(mat)). Without autograd, for one sample on CPU, it makes the very ``batch_norm``
         call that ``instance_norm`` makes (whose reshape to (1, B * C, M, K) is then the identity),
         without its wrapping (0.9 ms of 2.3 on a 3000 x 16 table), and the ReLU in place: the same values."""
         if (
-            not FAST_OPS
+            not fast
             or torch.is_grad_enabled()
             or mat.shape[0] != 1
             or mat.device.type != "cpu"
@@ -182,13 +180,13 @@ class ResidualBlock(nn.Module):
             self.shortcut = nn.Conv1d(in_channels, out_channels, 1)
             self.bn_shortcut = nn.BatchNorm1d(out_channels)
 
-    def forward(self, x: Tensor, pos: Tensor, support: Tensor, index: Tensor) -> Tensor:
+    def forward(self, x: Tensor, pos: Tensor, support: Tensor, index: Tensor, fast: bool = True) -> Tensor:
         h = F.relu(self.bn0(self.cv0(x)))
-        h = F.relu(self.bn1(self.cv1(h, pos, support, index)))
+        h = F.relu(self.bn1(self.cv1(h, pos, support, index, fast)))
         h = self.bn2(self.cv2(h))
         short = self.bn_shortcut(self.shortcut(x))
         if short.shape[2] != h.shape[2]:
-            short = max_pool(short, index)
+            short = max_pool(short, index, fast)
         return F.relu(h + short)
 
 
@@ -228,19 +226,20 @@ class FKAConvBackbone(nn.Module):
         self.fcout = nn.Conv1d(h, out_channels, 1)
         self.dropout = nn.Dropout(0.0)
 
-    def forward(self, x: Tensor, pos: Tensor, tables: dict[str, Tensor]) -> Tensor:
-        """x (B, C, N) input features, pos (B, 3, N) -> per-point latents (B, out, N)."""
+    def forward(self, x: Tensor, pos: Tensor, tables: dict[str, Tensor], fast: bool = True) -> Tensor:
+        """x (B, C, N) input features, pos (B, 3, N) -> per-point latents (B, out, N); ``fast=False`` runs
+        the original operations of the point convolutions (the same values)."""
         p0, p1, p2, p3, p4 = level_points(pos, tables)
-        x0 = F.relu(self.bn0(self.cv0(x, p0, p0, tables["ids00"])))
-        x0 = self.resnetb01(x0, p0, p0, tables["ids00"])
-        x1 = self.resnetb10(x0, p0, p1, tables["ids01"])
-        x1 = self.resnetb11(x1, p1, p1, tables["ids11"])
-        x2 = self.resnetb20(x1, p1, p2, tables["ids12"])
-        x2 = self.resnetb21(x2, p2, p2, tables["ids22"])
-        x3 = self.resnetb30(x2, p2, p3, tables["ids23"])
-        x3 = self.resnetb31(x3, p3, p3, tables["ids33"])
-        x4 = self.resnetb40(x3, p3, p4, tables["ids34"])
-        x4 = self.resnetb41(x4, p4, p4, tables["ids44"])
+        x0 = F.relu(self.bn0(self.cv0(x, p0, p0, tables["ids00"], fast)))
+        x0 = self.resnetb01(x0, p0, p0, tables["ids00"], fast)
+        x1 = self.resnetb10(x0, p0, p1, tables["ids01"], fast)
+        x1 = self.resnetb11(x1, p1, p1, tables["ids11"], fast)
+        x2 = self.resnetb20(x1, p1, p2, tables["ids12"], fast)
+        x2 = self.resnetb21(x2, p2, p2, tables["ids22"], fast)
+        x3 = self.resnetb30(x2, p2, p3, tables["ids23"], fast)
+        x3 = self.resnetb31(x3, p3, p3, tables["ids33"], fast)
+        x4 = self.resnetb40(x3, p3, p4, tables["ids34"], fast)
+        x4 = self.resnetb41(x4, p4, p4, tables["ids44"], fast)
         # The released model computes relu(bn5(cv5([x4; global max]))) here and discards it: skipped.
         x3d = F.relu(self.bn3d(self.cv3d(torch.cat([upsample_nearest(x4, tables["ids43"]), x3], dim=1))))
         x2d = F.relu(self.bn2d(self.cv2d(torch.cat([upsample_nearest(x3d, tables["ids32"]), x2], dim=1))))
@@ -425,9 +424,13 @@ class PocoModel(nn.Module):
         """The encoder input this preset expects (see `input_features`)."""
         return input_features(points, self.preset.input_channels, directions)
 
-    def encode(self, points: Tensor, features: Tensor, tables: dict[str, Tensor]) -> Tensor:
-        """points (B, 3, N), features (B, C, N) -> latents (B, L, N)."""
-        out: Tensor = self.net(features, points, tables)
+    def encode(self, points: Tensor, features: Tensor, tables: dict[str, Tensor], fast: bool = True) -> Tensor:
+        """points (B, 3, N), features (B, C, N) -> latents (B, L, N). ``fast`` (the default) uses the
+        bit-identical faster operations of `neighbour_distances`, `neighbour_max` and
+        `FKAConv._norm_relu`; False the original ones (torch's norm, max with indices, instance_norm),
+        for the tests and benchmarks that compare the two (`PocoRefiner(fast=False)`): a choice of
+        the call, so two refiners sharing one model in two threads each get their own."""
+        out: Tensor = self.net(features, points, tables, fast)
         return out
 
     def decode(
@@ -503,10 +506,16 @@ class PocoModel(nn.Module):
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=2)
 
     def forward(
-        self, points: Tensor, features: Tensor, tables: dict[str, Tensor], queries: Tensor, knn: Tensor
+        self,
+        points: Tensor,
+        features: Tensor,
+        tables: dict[str, Tensor],
+        queries: Tensor,
+        knn: Tensor,
+        fast: bool = True,
     ) -> Tensor:
-        """Encode then decode: logits (B, 2, M)."""
-        return self.decode(self.encode(points, features, tables), points, queries, knn)
+        """Encode then decode: logits (B, 2, M) (``fast``: `encode`'s operations)."""
+        return self.decode(self.encode(points, features, tables, fast), points, queries, knn)
 
     def count_parameters(self, trainable_only: bool = True) -> int:
         """Number of (trainable) parameters; ``norm_radius`` scalars are frozen, cv5/bn5 are counted."""

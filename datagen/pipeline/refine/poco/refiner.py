@@ -16,7 +16,7 @@ Speed (issue 24): the refiner keeps the depth buffers and the bands of the views
 (`freespace.DepthBuffers`, `base.ViewBands`: a task's cases reuse its single views) and runs the
 network through its inference path (`inputs.predict_probs` with ``fast=True``: cache-sized decoder
 sub-chunks, in-place updates, and in the encoder a vectorised neighbour norm, amax, batch_norm for
-one sample's instance norm: see `network.FAST_OPS`). Every one of these gives bit-identical
+one sample's instance norm: see `PocoModel.encode`). Every one of these gives bit-identical
 probabilities, so the refiner's outputs, and the dataset's identity, are those of the original
 execution, which ``fast=False`` still runs (benchmarks/refine_speed.py,
 tests/pipeline/test_refine_speed.py).
@@ -54,7 +54,6 @@ from datagen.pipeline.keys import key_centres, unpack_keys
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import RefineRequest, ViewBands
 from datagen.pipeline.refine.freespace import DepthBuffers
-from datagen.pipeline.refine.poco import network
 from datagen.pipeline.refine.poco.inputs import (
     choose_inputs,
     forward_logits,
@@ -76,17 +75,6 @@ are built on the CPU)."""
 
 def weights_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-@contextmanager
-def _network_ops(fast: bool) -> Iterator[None]:
-    """`network.FAST_OPS` set to ``fast`` while inside (the original operations when False)."""
-    previous = network.FAST_OPS
-    network.FAST_OPS = fast
-    try:
-        yield
-    finally:
-        network.FAST_OPS = previous
 
 
 class PocoRefiner:
@@ -117,22 +105,21 @@ class PocoRefiner:
             )
         self.fast = fast
         """False: the original execution (no buffer reuse, `PocoModel.decode` in 8192-query chunks,
-        the original operations: `network.FAST_OPS`); the same outputs, for benchmarks and the tests
-        that check so."""
+        the encoder's original operations: `PocoModel.encode`); the same outputs, for benchmarks and the
+        tests that check so. A property of this refiner: every call it makes passes it on."""
         self.depth_buffers: DepthBuffers | None = DepthBuffers() if fast else None
         self.view_bands: ViewBands | None = ViewBands(config.band_keys_sq) if fast else None
         self._inside = False
 
     @contextmanager
     def execution(self) -> Iterator[None]:
-        """`network.FAST_OPS` as ``fast`` asks and, for pykdtree, OpenMP bounded to torch's thread count
-        (one per worker), for the calls inside; `refine` and `probabilities` enter it themselves, and
-        a caller of many `probabilities` may enter it once around them (threadpoolctl costs ~1 ms)."""
+        """For pykdtree, OpenMP bounded to torch's thread count (one per worker), for the calls inside;
+        `refine` and `probabilities` enter it themselves, and a caller of many `probabilities` may enter
+        it once around them (threadpoolctl costs ~1 ms)."""
         if self._inside:
             yield
             return
         with ExitStack() as stack:
-            stack.enter_context(_network_ops(self.fast))
             if self.knn_backend == "pykdtree":
                 stack.enter_context(threadpool_limits(limits=torch.get_num_threads(), user_api="openmp"))
             self._inside = True
@@ -205,7 +192,7 @@ class PocoRefiner:
             q = np.concatenate([pos, neg])
             labels = torch.from_numpy(np.concatenate([np.ones(len(pos)), np.zeros(len(neg))]).astype(np.int64))[None]
             points, dirs, qt = network_tensors(inputs[pick], directions[pick], q)
-            logits = forward_logits(model, points, dirs, qt, generator, self.device, self.knn_backend)
+            logits = forward_logits(model, points, dirs, qt, generator, self.device, self.knn_backend, self.fast)
             loss = torch.nn.functional.cross_entropy(logits, labels.to(self.device))
             optimizer.zero_grad()
             loss.backward()
