@@ -7,7 +7,8 @@ Depends on numpy, zarr, pyarrow, fsspec and `schemas` only: a training package n
 from storage.covers import covers_universe, nearest_cover, undominated, universe_rows
 from storage.dataset_info import init_dataset, read_info
 from storage.export import export_air
-from storage.location import DamagedFile, Location, StorageError, is_s3, open_location
+from storage.location import DamagedFile, Location, StorageError, StoreUnreachable, is_s3, open_location
+from storage.problems import Mend, Problem
 from storage.reader import Dataset, LabelAmbiguity, finalise, load_index, open_dataset
 from storage.shards import ShardReader
 from storage.store_errors import check_store, is_store_failure, is_transient, storage_failure, store_errors
@@ -32,9 +33,12 @@ __all__ = [
     "Dataset",
     "LabelAmbiguity",
     "Location",
+    "Mend",
+    "Problem",
     "ShardPayload",
     "ShardReader",
     "StorageError",
+    "StoreUnreachable",
     "Validation",
     "check_store",
     "committed_tasks",

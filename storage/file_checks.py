@@ -2,7 +2,8 @@
 records agree, and what did interrupted writes leave behind.
 
 Problems mean a reader refuses the dataset or serves other samples than the index promises;
-warnings are harmless leftovers a user may clean up. Every line names its file (and task).
+warnings are harmless leftovers a user may clean up. Every problem names its file (and task) and what
+mends it (`storage.problems`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from storage.index import (
 )
 from storage.location import RERUN_FIX, DamagedFile, Location, is_temporary
 from storage.parquet import read_index_table, read_parquet
+from storage.problems import Mend, Problem
 from storage.writer import commit_path, failure_path, read_failure_records
 
 REFINALISE_FIX = "finish the job (`datagen resume JOB`) to finalise the index again"
@@ -29,65 +31,81 @@ REFINALISE_FIX = "finish the job (`datagen resume JOB`) to finalise the index ag
 
 def check_fragments(
     location: Location, commits: Sequence[CommitRecord], schema_version: int | None
-) -> tuple[list[str], list[pa.Table]]:
-    """Problem lines of the committed index fragments, and those with the columns of the
-    dataset's layout version (None, when dataset.json is unreadable: the first fragment's)."""
-    lines: list[str] = []
+) -> tuple[list[Problem], list[pa.Table]]:
+    """Problems of the committed index fragments (re-running the task mends each), and the fragments
+    with the columns of the dataset's layout version (None, when dataset.json is unreadable: the first
+    fragment's)."""
+    found: list[Problem] = []
     tables: list[pa.Table] = []
     for record in commits:
+
+        def problem(message: str, record: CommitRecord = record) -> Problem:
+            return Problem("fragment", record.index_fragment, message, Mend.TASK, record.task_id)
+
         try:
             fragment = read_parquet(location, record.index_fragment)
         except DamagedFile as exc:
-            lines.append(f"{record.index_fragment}: cannot read index fragment ({exc.problem}); {RERUN_FIX}")
+            found.append(problem(f"cannot read index fragment ({exc.problem}); {RERUN_FIX}"))
             continue
-        found = index_schema_version(fragment.schema)
-        if schema_version is None and found is not None:
-            schema_version = found
-        if found is None or found != schema_version:
-            version = "no known version" if found is None else f"version {found}"
-            lines.append(
-                f"{record.index_fragment}: index columns of {version}, the dataset is version {schema_version}"
-            )
+        version = index_schema_version(fragment.schema)
+        if schema_version is None and version is not None:
+            schema_version = version
+        if version is None or version != schema_version:
+            named = "no known version" if version is None else f"version {version}"
+            found.append(problem(f"index columns of {named}, the dataset is version {schema_version}"))
             continue
         if fragment.num_rows != record.num_samples:
-            lines.append(f"{record.index_fragment}: {fragment.num_rows} rows for {record.num_samples} samples")
-        tables.append(fragment.cast(INDEX_SCHEMAS[found]))
-    return lines, tables
+            found.append(problem(f"{fragment.num_rows} rows for {record.num_samples} samples"))
+        tables.append(fragment.cast(INDEX_SCHEMAS[version]))
+    return found, tables
 
 
-def check_finalised_index(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[str], pa.Table | None]:
-    """Problem lines where ``index.json``/``index.parquet`` disagree with the commit records, and
-    the finalised table when it covers exactly the commits (the index readers would use)."""
+def check_finalised_index(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[Problem], pa.Table | None]:
+    """Problems where ``index.json``/``index.parquet`` disagree with the commit records, and the
+    finalised table when it covers exactly the commits (the index readers would use). A task the index
+    names whose commit record is lost is mended by re-running it; everything else here by finalising
+    the index again."""
     try:
         coverage = read_coverage(location)
     except DamagedFile as exc:
-        return [f"{exc.relative}: {exc.problem}; {REFINALISE_FIX}"], None
+        return [Problem("index", exc.relative, f"{exc.problem}; {REFINALISE_FIX}", Mend.INDEX)], None
     if coverage is None:
         return [], None  # never finalised: readers merge the fragments (checked on their own)
     named = dict(coverage_disagreements(coverage, commits))
-    lines = [f"{INDEX_COVERAGE_FILE}: task {task} {what}; {RERUN_FIX}" for task, what in named.items()]
-    lines += [
-        f"{commit_path(task)}: task {task} is committed but not in the finalised index ({INDEX_COVERAGE_FILE}); "
-        f"{REFINALISE_FIX}"
+    committed = {r.task_id for r in commits}
+    found = [  # a lost commit record: only a re-run commits the task again; another attempt: finalise again
+        Problem("index", INDEX_COVERAGE_FILE, f"task {task} {what}; {RERUN_FIX}", mend, task)
+        for task, what in named.items()
+        for mend in [Mend.TASK if task not in committed else Mend.INDEX]
+    ]
+    found += [
+        Problem(
+            "index",
+            commit_path(task),
+            f"task {task} is committed but not in the finalised index ({INDEX_COVERAGE_FILE}); {REFINALISE_FIX}",
+            Mend.INDEX,
+            task,
+        )
         for task in unindexed_tasks(coverage, commits)
     ]
     if not location.exists(INDEX_FILE):
-        return [*lines, f"{INDEX_FILE}: missing although {INDEX_COVERAGE_FILE} lists {len(coverage)} tasks"], None
+        message = f"missing although {INDEX_COVERAGE_FILE} lists {len(coverage)} tasks"
+        return [*found, Problem("index", INDEX_FILE, message, Mend.INDEX)], None
     try:
         table = read_index_table(location, INDEX_FILE)
     except DamagedFile as exc:
-        return [*lines, f"{INDEX_FILE}: {exc.problem}; {REFINALISE_FIX}"], None
+        return [*found, Problem("index", INDEX_FILE, f"{exc.problem}; {REFINALISE_FIX}", Mend.INDEX)], None
     covered = [r for r in commits if r.task_id in coverage]  # tasks committed since have no rows yet
-    lines += [
-        f"{INDEX_FILE}: task {task} {what}"
+    found += [
+        Problem("index", INDEX_FILE, f"task {task} {what}", Mend.INDEX, task)
         for task, what in row_count_disagreements(table, covered)
-        if task not in named  # one line per lost commit record, not two
+        if task not in named  # one problem per lost commit record, not two
     ]
     covers_commits = coverage == {r.task_id: r.attempt_id for r in commits}
-    return lines, table if covers_commits else None
+    return found, table if covers_commits else None
 
 
-def check_failures(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[str], list[str]]:
+def check_failures(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[Problem], list[str]]:
     """(problems, warnings) of the failure records: unparsable ones are problems; a failure record
     beside a commit record is a stale leftover (see `storage.writer.write_failure`), a warning."""
     records, problems = read_failure_records(location)

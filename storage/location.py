@@ -19,7 +19,13 @@ from schemas.errors import DatagenError
 
 
 class StorageError(DatagenError):
-    """The dataset location cannot be reached, read or written; the message says what to do."""
+    """The dataset location cannot be reached, read or written; the message says what to do. Its two
+    kinds: `StoreUnreachable` (the store itself fails us) and `DamagedFile` (the dataset is damaged)."""
+
+
+class StoreUnreachable(StorageError):
+    """The store cannot be reached or refuses the request (a wrong endpoint or path, refused
+    credentials, a missing bucket, a server down): nothing is known about the dataset's own files."""
 
 
 TEMPORARY_MARK = ".tmp-"

@@ -9,49 +9,37 @@ it and finalises the index.
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass, field
 
-from storage.file_checks import REFINALISE_FIX
-from storage.index import INDEX_COVERAGE_FILE, INDEX_FILE
+from storage.index import INDEX_COVERAGE_FILE
 from storage.location import Location
-from storage.writer import COMMITS, FAILURES, SHARDS, commit_path, failure_path
-
-_TASK_FILE = re.compile(rf"^(?:{SHARDS}/(?P<shard>[^/:\s]+)/|(?:{COMMITS}|{FAILURES})/(?P<record>[^/:\s]+)\.json:)")
-"""A line about a task's own file: ``shards/<task>/...`` or ``commits|failures/<task>.json:``."""
-_LOST_COMMIT = re.compile(rf"^{re.escape(INDEX_COVERAGE_FILE)}: task (?P<task>\S+) is in the finalised index but has")
-_INDEX_LEVEL = (f"{INDEX_FILE}:", f"{INDEX_COVERAGE_FILE}:", "index row ")
+from storage.problems import Mend, Problem
+from storage.writer import commit_path, failure_path
 
 
 @dataclass
 class Findings:
-    """`storage.validate`'s problem lines sorted by what mends them."""
+    """`storage.validate`'s problems sorted by what mends them (each problem's own `Mend`)."""
 
-    tasks: dict[str, list[str]] = field(default_factory=dict)
-    """task id -> its lines: re-running the task mends them (a shard, fragment or record damaged)."""
-    index: list[str] = field(default_factory=list)
-    """Lines finalising the index again mends (the merged index alone is stale or damaged)."""
-    other: list[str] = field(default_factory=list)
-    """Lines neither mends (``dataset.json`` damaged): the dataset cannot be repaired here."""
-
-    def add_task(self, task_id: str, line: str) -> None:
-        self.tasks.setdefault(task_id, []).append(line)
+    tasks: dict[str, list[Problem]] = field(default_factory=dict)
+    """task id -> its problems: re-running the task mends them (a shard, fragment or record damaged)."""
+    index: list[Problem] = field(default_factory=list)
+    """Problems finalising the index again mends (the merged index alone is stale or damaged)."""
+    other: list[Problem] = field(default_factory=list)
+    """Problems neither mends (``dataset.json`` damaged): the dataset cannot be repaired here."""
 
 
-def sort_problems(problems: list[str]) -> Findings:
-    """Each problem line to the task it names (from its file's path), the index, or neither."""
+def sort_problems(problems: list[Problem]) -> Findings:
+    """Each problem to the task whose re-run mends it, the index, or neither: from its record, never
+    from its message."""
     found = Findings()
-    for line in problems:
-        lost = _LOST_COMMIT.match(line)
-        task_file = _TASK_FILE.match(line)
-        if lost:
-            found.add_task(lost["task"], line)
-        elif task_file and REFINALISE_FIX not in line and "duplicate sample id" not in line:
-            found.add_task(task_file["shard"] or task_file["record"], line)
-        elif line.startswith(_INDEX_LEVEL) or (task_file and REFINALISE_FIX in line):
-            found.index.append(line)
+    for problem in problems:
+        if problem.mend is Mend.TASK and problem.task:
+            found.tasks.setdefault(problem.task, []).append(problem)
+        elif problem.mend is Mend.INDEX:
+            found.index.append(problem)
         else:
-            found.other.append(line)
+            found.other.append(problem)
     return found
 
 

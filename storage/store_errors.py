@@ -18,7 +18,7 @@ import os
 from collections.abc import Iterator
 from typing import Any
 
-from storage.location import Location, StorageError, first_line, is_s3
+from storage.location import Location, StorageError, StoreUnreachable, first_line, is_s3
 
 PROBE_TIMEOUT = 5.0
 """Seconds `check_store` waits to connect or for an answer (at most the configured timeout)."""
@@ -90,30 +90,31 @@ def is_store_failure(error: BaseException) -> bool:
     return type(error).__module__.split(".")[0] in ("botocore", "aiobotocore", "aiohttp")
 
 
-def storage_failure(url: str, error: BaseException) -> StorageError:
-    """One line for a store that cannot be reached or refuses us, naming what to check."""
+def storage_failure(url: str, error: BaseException) -> StoreUnreachable:
+    """One line for a store that cannot be reached or refuses us, naming what to check: a
+    `StoreUnreachable`, never confused with a damaged dataset (`DamagedFile`)."""
     detail = first_line(error)
     if not is_s3(url):
-        return StorageError(f"{url}: cannot use the dataset store ({detail}); check the path and its permissions")
+        return StoreUnreachable(f"{url}: cannot use the dataset store ({detail}); check the path and its permissions")
     endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL") or "AWS's default"
     kind = classify(error)
     bucket = bucket_of(url)
     if kind == UNREACHABLE:
-        return StorageError(
+        return StoreUnreachable(
             f"{url}: cannot reach the S3 endpoint {endpoint} ({detail}); check AWS_ENDPOINT_URL and that the "
             "server is up (the credentials AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY come next)"
         )
     if kind == REFUSED:
-        return StorageError(
+        return StoreUnreachable(
             f"{url}: the S3 store at {endpoint} refused the request ({detail}); check the credentials "
             "AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY (and that AWS_ENDPOINT_URL is the right store)"
         )
     if kind == NO_BUCKET:
-        return StorageError(
+        return StoreUnreachable(
             f"{url}: the bucket {bucket!r} does not exist at {endpoint}; create it (e.g. `aws s3 mb s3://{bucket}`) "
             "or check the URL and AWS_ENDPOINT_URL"
         )
-    return StorageError(
+    return StoreUnreachable(
         f"{url}: cannot use the dataset store ({detail}); check the bucket, AWS_ENDPOINT_URL and the credentials "
         "(AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY)"
     )
@@ -125,7 +126,7 @@ def bucket_of(url: str) -> str:
 
 @contextlib.contextmanager
 def store_errors(url: str) -> Iterator[None]:
-    """Turn a failure of the store inside the block into one `StorageError` line; other errors
+    """Turn a failure of the store inside the block into one `StoreUnreachable` line; other errors
     (damage is already a `StorageError`, bugs keep their traceback) pass through."""
     try:
         yield

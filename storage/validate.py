@@ -39,6 +39,7 @@ from storage.covers import listed_problem, undominated, universe_rows
 from storage.dataset_info import read_info
 from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
 from storage.location import DamagedFile, Location, StorageError, open_location
+from storage.problems import Mend, Problem, lines
 from storage.shards import ShardReader
 from storage.store_errors import check_store
 from storage.visibility import VisibilityJudge, key_view_masks
@@ -46,6 +47,16 @@ from storage.writer import read_commits
 
 SAMPLED_ROWS_PER_SHARD = 8
 SHARD_THREADS = 8
+
+
+@dataclass(frozen=True)
+class _Shard:
+    """Problems of one committed shard: re-running its task mends them."""
+
+    record: CommitRecord
+
+    def __call__(self, kind: str, message: str, array: str | None = None, place: str = "") -> Problem:
+        return Problem(kind, self.record.shard, message, Mend.TASK, self.record.task_id, array, place)
 
 
 ShardCheck = Callable[[CommitRecord, ShardReader], None]
@@ -59,8 +70,13 @@ class Validation:
     """What `validate_dataset` found: ``problems`` (the dataset is not sound; readers refuse it or
     part of it) and ``warnings`` (harmless leftovers a user may clean up)."""
 
-    problems: list[str] = field(default_factory=list)
+    problems: list[Problem] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+
+    @property
+    def lines(self) -> list[str]:
+        """The problems as printed."""
+        return lines(self.problems)
 
 
 def validate(
@@ -71,13 +87,13 @@ def validate(
     shard_check: ShardCheck | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> list[str]:
-    """Every problem found, one line each (empty when the dataset is sound; warnings about
-    leftovers: `validate_dataset`).
+    """Every problem found, one printed line each (empty when the dataset is sound; the records and the
+    warnings about leftovers: `validate_dataset`).
 
     ``full=False`` checks coverage on a seeded sample of rows per shard; ``full=True`` on every row.
     ``progress`` is called with (shards done, shards in all).
     """
-    return validate_dataset(url, full, seed, storage_options, shard_check, progress).problems
+    return validate_dataset(url, full, seed, storage_options, shard_check, progress).lines
 
 
 def validate_dataset(
@@ -88,7 +104,8 @@ def validate_dataset(
     shard_check: ShardCheck | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Validation:
-    """`validate`'s problems plus warnings; never raises for a damaged file (each is a line)."""
+    """`validate`'s problems as records (`storage.problems.Problem`) plus warnings; never raises for a
+    damaged file (each is a problem); an unreachable store is `StoreUnreachable`."""
     location = open_location(url, storage_options)
     check_store(location)  # an unreachable store is an error, not a problem of the dataset
     found = Validation()
@@ -96,9 +113,9 @@ def validate_dataset(
         info: DatasetInfo | None = read_info(location)
     except DamagedFile as exc:  # the records can still be checked; the shards need the config
         info = None
-        found.problems.append(f"{exc.relative}: {exc.problem}")
+        found.problems.append(Problem("dataset", exc.relative, exc.problem, Mend.NONE))
     except StorageError as exc:  # no dataset here at all
-        return Validation([str(exc)])
+        return Validation([Problem("dataset", "", str(exc), Mend.NONE)])
     commits, unreadable = read_commits(location)
     found.problems.extend(unreadable)
     if info is not None:
@@ -118,11 +135,11 @@ def _check_shards(
     seed: int,
     shard_check: ShardCheck | None,
     progress: Callable[[int, int], None] | None,
-) -> list[str]:
-    problems: list[str] = []
+) -> list[Problem]:
+    problems: list[Problem] = []
     num_views, config = info.num_views, info.config
 
-    def check(numbered: tuple[int, CommitRecord]) -> list[str]:
+    def check(numbered: tuple[int, CommitRecord]) -> list[Problem]:
         number, record = numbered
         rng = np.random.default_rng([seed, number])  # one stream per shard: threads cannot reorder draws
         return list(_check_shard(location, record, info.schema_version, num_views, config, full, rng, shard_check))
@@ -146,17 +163,17 @@ def _check_shard(
     full: bool,
     rng: np.random.Generator,
     shard_check: ShardCheck | None = None,
-) -> Iterator[str]:
-    where = record.shard
+) -> Iterator[Problem]:
+    at = _Shard(record)
     try:
-        shard = ShardReader(location, record.shard, verify=False)  # each finding becomes a line below
+        shard = ShardReader(location, record.shard, verify=False)  # each finding becomes a problem below
     except DamagedFile as exc:  # a missing or unreadable group: report, keep checking others
-        yield f"{where}: cannot open shard ({exc.problem})"
+        yield at("shard", f"cannot open shard ({exc.problem})")
         return
     try:
         yield from _check_open_shard(shard, record, schema_version, num_views, config, full, rng, shard_check)
-    except DamagedFile as exc:  # unreadable metadata of an array: the shard's last line
-        yield f"{where}: {exc.problem}" if exc.relative == where else f"{exc.relative}: {exc.problem}"
+    except DamagedFile as exc:  # unreadable metadata of an array: the shard's last problem
+        yield Problem("array", exc.relative, exc.problem, Mend.TASK, record.task_id)
 
 
 def _check_open_shard(
@@ -168,86 +185,89 @@ def _check_open_shard(
     full: bool,
     rng: np.random.Generator,
     shard_check: ShardCheck | None,
-) -> Iterator[str]:
-    where = record.shard
+) -> Iterator[Problem]:
+    at = _Shard(record)
     count = record.num_samples
     if shard.attributes.num_samples != count or shard.attributes.attempt_id != record.attempt_id:
-        yield f"{where}: attributes disagree with the commit record (samples or attempt id)"
+        yield at("shard", "attributes disagree with the commit record (samples or attempt id)")
     if shard.attributes.schema_version != schema_version:
-        yield f"{where}: schema version {shard.attributes.schema_version}, the dataset is version {schema_version}"
+        found = shard.attributes.schema_version
+        yield at("shard", f"schema version {found}, the dataset is version {schema_version}")
         return
     expected = array_names(schema_version)
     names = shard.array_names()
     missing = sorted(set(expected) - set(names))
     if missing:
-        yield f"{where}: missing arrays {missing}"
+        yield at("array", f"missing arrays {missing}")
         return
     incomplete = shard.incomplete_arrays(expected)
     if incomplete:
-        yield f"{where}: arrays with missing chunks {incomplete}; the shard is truncated"
+        yield at("array", f"arrays with missing chunks {incomplete}; the shard is truncated")
         return
     try:
         arrays = {name: shard.array(name) for name in expected}
     except DamagedFile as exc:
-        yield f"{where}: cannot read arrays ({exc.relative}: {exc.problem})"
+        yield at("array", f"cannot read arrays ({exc.relative}: {exc.problem})")
         return
     masks = arrays[MASKS]
     if masks.dtype != MASK_DTYPE or masks.shape != (count, 2):
-        yield f"{where}: masks has shape {masks.shape} {masks.dtype}, expected ({count}, 2) uint64"
+        yield at("array", f"masks has shape {masks.shape} {masks.dtype}, expected ({count}, 2) uint64", MASKS)
         return
-    shape_problems = list(_check_key_sets(where, arrays, count, num_views))
+    shape_problems = list(_check_key_sets(at, arrays, count, num_views))
     yield from shape_problems
     if shape_problems:
         return
-    yield from _check_sorted_sets(where, arrays, per_sample=True)
-    yield from _check_sorted_sets(where, arrays, per_sample=False)
+    yield from _check_sorted_sets(at, arrays, per_sample=True)
+    yield from _check_sorted_sets(at, arrays, per_sample=False)
     too_wide = (masks >> np.uint64(num_views)) != 0 if num_views < 64 else np.zeros_like(masks, dtype=bool)
     for row in np.flatnonzero(too_wide.any(axis=1)):
-        yield f"{where} row {row}: mask has bits beyond the {num_views} views"
+        yield at("sample", f"mask has bits beyond the {num_views} views", MASKS, f"row {row}")
     overlap = (masks[:, VIEW_STATE_COLUMN] & masks[:, LABEL_COLUMN]) != 0
     for row in np.flatnonzero(overlap):
-        yield f"{where} row {row}: label shares views with the input case"
+        yield at("sample", "label shares views with the input case", MASKS, f"row {row}")
     rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
     full_masks = _full_masks(arrays, num_views, config.alpha)
     if config.label_objective == "cover":
-        yield from _check_coverage(where, masks, full_masks, rows)
+        yield from _check_coverage(at, masks, full_masks, rows)
         ties_problem: TiesProblem = _covers_problem
     else:
         judge = VisibilityJudge(_task_sets(arrays, "visible", num_views), config)
-        yield from _check_visibility(where, masks, judge, rows)
+        yield from _check_visibility(at, masks, judge, rows)
         ties_problem = judge.ties_problem
     if schema_version >= 2:
-        yield from _check_covers(where, arrays, count, full_masks, rows, ties_problem)
+        yield from _check_covers(at, arrays, count, full_masks, rows, ties_problem)
     if shard_check is not None:
         shard_check(record, shard)
 
 
-def _check_key_sets(where: str, arrays: dict[str, npt.NDArray[Any]], count: int, num_views: int) -> Iterator[str]:
+def _check_key_sets(at: _Shard, arrays: dict[str, npt.NDArray[Any]], count: int, num_views: int) -> Iterator[Problem]:
     expected = {name: count + 1 for name in KEY_SETS} | {name: num_views + 1 for name in TASK_SETS}
     for name, length in expected.items():
         keys, offsets = arrays[keys_array(name)], arrays[offsets_array(name)]
         if keys.dtype != KEY_DTYPE or keys.ndim != 2 or keys.shape[1] != 3:
-            yield f"{where}: {keys_array(name)} has shape {keys.shape} {keys.dtype}, expected (K, 3) int16"
+            found = f"{keys.shape} {keys.dtype}"
+            yield at("array", f"{keys_array(name)} has shape {found}, expected (K, 3) int16", keys_array(name))
             continue
         if offsets.dtype != OFFSET_DTYPE or offsets.shape != (length,):
             shape = f"{offsets.shape} {offsets.dtype}"
-            yield f"{where}: {offsets_array(name)} has shape {shape}, expected ({length},) int64"
+            message = f"{offsets_array(name)} has shape {shape}, expected ({length},) int64"
+            yield at("array", message, offsets_array(name))
             continue
         if offsets[0] != 0 or (np.diff(offsets) < 0).any() or offsets[-1] != keys.shape[0]:
             bad = np.flatnonzero(np.diff(offsets) < 0)
-            row = f" row {int(bad[0])}" if bad.size else ""
-            yield (
-                f"{where}{row}: {offsets_array(name)} not monotone from 0 to {keys.shape[0]} "
+            message = (
+                f"{offsets_array(name)} not monotone from 0 to {keys.shape[0]} "
                 f"(first {int(offsets[0])}, last {int(offsets[-1])}); the array is truncated or the offsets are bad"
             )
+            yield at("array", message, offsets_array(name), f"row {int(bad[0])}" if bad.size else "")
     gt = arrays[GT_KEYS]
     if gt.dtype != KEY_DTYPE or gt.ndim != 2 or gt.shape[1] != 3:
-        yield f"{where}: {GT_KEYS} has shape {gt.shape} {gt.dtype}, expected (G, 3) int16"
+        yield at("array", f"{GT_KEYS} has shape {gt.shape} {gt.dtype}, expected (G, 3) int16", GT_KEYS)
     elif (np.diff(_packed(gt)) <= 0).any():
-        yield f"{where}: {GT_KEYS} is not sorted and unique"
+        yield at("array", f"{GT_KEYS} is not sorted and unique", GT_KEYS)
 
 
-def _check_sorted_sets(where: str, arrays: dict[str, npt.NDArray[Any]], per_sample: bool) -> Iterator[str]:
+def _check_sorted_sets(at: _Shard, arrays: dict[str, npt.NDArray[Any]], per_sample: bool) -> Iterator[Problem]:
     """Every key set is sorted (x, y, z) and unique: packed values strictly increase in a segment."""
     for name in KEY_SETS if per_sample else TASK_SETS:
         keys, offsets = arrays[keys_array(name)], arrays[offsets_array(name)]
@@ -259,8 +279,9 @@ def _check_sorted_sets(where: str, arrays: dict[str, npt.NDArray[Any]], per_samp
         if not rising.all():
             position = int(np.flatnonzero(~rising)[0]) + 1
             row = int(np.searchsorted(offsets, position, side="right")) - 1
-            label = "row" if per_sample else "view"
-            yield f"{where} {label} {row}: {keys_array(name)} is not sorted and unique (zeroed or corrupt data)"
+            place = f"{'row' if per_sample else 'view'} {row}"
+            message = f"{keys_array(name)} is not sorted and unique (zeroed or corrupt data)"
+            yield at("array", message, keys_array(name), place)
 
 
 def _packed(keys: npt.NDArray[np.int16]) -> npt.NDArray[np.int64]:
@@ -281,25 +302,25 @@ def _full_masks(arrays: dict[str, npt.NDArray[Any]], num_views: int, alpha: int)
 
 
 def _check_coverage(
-    where: str, masks: npt.NDArray[np.uint64], full_masks: npt.NDArray[np.uint64], rows: npt.NDArray[np.int64]
-) -> Iterator[str]:
+    at: _Shard, masks: npt.NDArray[np.uint64], full_masks: npt.NDArray[np.uint64], rows: npt.NDArray[np.int64]
+) -> Iterator[Problem]:
     """Each checked row's label must cover its U (the P_full keys its input views miss)."""
     for row in rows:
         case, label = np.uint64(masks[row, VIEW_STATE_COLUMN]), np.uint64(masks[row, LABEL_COLUMN])
         universe = full_masks[(full_masks & case) == 0]
         uncovered = int(np.count_nonzero((universe & label) == 0))
         if uncovered:
-            yield f"{where} row {row}: label leaves {uncovered} keys of U uncovered"
+            yield at("uncovered", f"label leaves {uncovered} keys of U uncovered", MASKS, f"row {row}")
 
 
 def _check_visibility(
-    where: str, masks: npt.NDArray[np.uint64], judge: VisibilityJudge, rows: npt.NDArray[np.int64]
-) -> Iterator[str]:
+    at: _Shard, masks: npt.NDArray[np.uint64], judge: VisibilityJudge, rows: npt.NDArray[np.int64]
+) -> Iterator[Problem]:
     """A visibility objective's labels keep its promise (budget, share of the reference reached)."""
     for row in rows.tolist():
         problem = judge.label_problem(int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN]))
         if problem:
-            yield f"{where} row {row}: {problem}"
+            yield at("label", problem, MASKS, f"row {row}")
 
 
 TiesProblem = Callable[[npt.NDArray[np.uint64], int, int, npt.NDArray[np.uint64]], str | None]
@@ -307,13 +328,13 @@ TiesProblem = Callable[[npt.NDArray[np.uint64], int, int, npt.NDArray[np.uint64]
 
 
 def _check_covers(
-    where: str,
+    at: _Shard,
     arrays: dict[str, npt.NDArray[Any]],
     count: int,
     full_masks: npt.NDArray[np.uint64],
     rows: npt.NDArray[np.int64],
     ties_problem: TiesProblem,
-) -> Iterator[str]:
+) -> Iterator[Problem]:
     """Version 2: the cover rows are P_full's undominated masks, and each checked row lists the sets as
     good as its label (for the paper's objective: distinct covers of U, sorted, all of the label's
     size, the label among them). That they are the best and all of them needs a solver: `datagen shards
@@ -321,17 +342,20 @@ def _check_covers(
     cover_rows, covers, offsets = arrays[COVER_ROWS], arrays[COVERS], arrays[offsets_array(COVERS)]
     for name, array in ((COVER_ROWS, cover_rows), (COVERS, covers)):
         if array.dtype != MASK_DTYPE or array.ndim != 1:
-            yield f"{where}: {name} has shape {array.shape} {array.dtype}, expected (M,) uint64"
+            yield at("array", f"{name} has shape {array.shape} {array.dtype}, expected (M,) uint64", name)
             return
+    covers_offsets = offsets_array(COVERS)
     if offsets.dtype != OFFSET_DTYPE or offsets.shape != (count + 1,):
         found = f"{offsets.shape} {offsets.dtype}"
-        yield f"{where}: {offsets_array(COVERS)} has shape {found}, expected ({count + 1},) int64"
+        yield at("array", f"{covers_offsets} has shape {found}, expected ({count + 1},) int64", covers_offsets)
         return
     if offsets[0] != 0 or (np.diff(offsets) < 0).any() or offsets[-1] != covers.size:
-        yield f"{where}: {offsets_array(COVERS)} not monotone from 0 to {covers.size}; the array is truncated"
+        message = f"{covers_offsets} not monotone from 0 to {covers.size}; the array is truncated"
+        yield at("array", message, covers_offsets)
         return
     if not np.array_equal(cover_rows, undominated(full_masks)):
-        yield f"{where}: {COVER_ROWS} are not the undominated masks of P_full recomputed from the stored P_i"
+        message = f"{COVER_ROWS} are not the undominated masks of P_full recomputed from the stored P_i"
+        yield at("array", message, COVER_ROWS)
         return
     masks = arrays[MASKS]
     for row in rows.tolist():
@@ -339,7 +363,7 @@ def _check_covers(
         listed = covers[offsets[row] : offsets[row + 1]]
         problem = ties_problem(listed, case, label, universe_rows(cover_rows, case))
         if problem:
-            yield f"{where} row {row}: {problem}"
+            yield at("covers", problem, COVERS, f"row {row}")
 
 
 def _covers_problem(listed: npt.NDArray[np.uint64], case: int, label: int, rows: npt.NDArray[np.uint64]) -> str | None:
@@ -356,13 +380,13 @@ def _covers_problem(listed: npt.NDArray[np.uint64], case: int, label: int, rows:
     return listed_problem(listed, case, label, ("minimum cover", "minimum covers"), covering)
 
 
-def _check_index(location: Location, commits: list[CommitRecord], schema_version: int | None) -> Iterator[str]:
+def _check_index(location: Location, commits: list[CommitRecord], schema_version: int | None) -> Iterator[Problem]:
     """The fragments, the finalised index against the commit records, then each row of the index
     readers would use (the finalised one when it covers the commits, else the merged fragments)."""
-    lines, fragments = check_fragments(location, commits, schema_version)
-    yield from lines
-    lines, finalised = check_finalised_index(location, commits)
-    yield from lines
+    found, fragments = check_fragments(location, commits, schema_version)
+    yield from found
+    found, finalised = check_finalised_index(location, commits)
+    yield from found
     if finalised is not None:
         index = finalised
     elif fragments:
@@ -377,15 +401,15 @@ def _check_index(location: Location, commits: list[CommitRecord], schema_version
     for position, sample in enumerate(sample_ids):
         if sample in seen:
             first = seen[sample]
-            yield (
-                f"{shards[position]} row {rows[position]}: duplicate sample id {sample} "
-                f"(also {shards[first]} row {rows[first]})"
-            )
+            message = f"duplicate sample id {sample} (also {shards[first]} row {rows[first]})"
+            yield Problem("index-row", shards[position], message, Mend.NONE, place=f"row {rows[position]}")
         else:
             seen[sample] = position
     for position, (shard, row) in enumerate(zip(shards, rows, strict=True)):
         owner = committed.get(shard)
         if owner is None:
-            yield f"index row {position}: points to {shard}, which no commit record names"
+            message = f"points to {shard}, which no commit record names"
+            yield Problem("index-row", "index", message, Mend.INDEX, place=f"row {position}")
         elif not 0 <= row < owner.num_samples:
-            yield f"index row {position}: row {row} is outside {shard} ({owner.num_samples} samples)"
+            message = f"row {row} is outside {shard} ({owner.num_samples} samples)"
+            yield Problem("index-row", "index", message, Mend.INDEX, owner.task_id, place=f"row {position}")

@@ -29,6 +29,7 @@ from schemas.index import INDEX_SCHEMAS, CommitRecord, FailureRecord, StepSecond
 from schemas.shard import ShardAttributes
 from storage.location import RERUN_FIX, DamagedFile, Location, damaged, first_validation_error, is_temporary
 from storage.parquet import parquet_bytes
+from storage.problems import Mend, Problem
 from storage.shards import write_shard_group
 
 COMMITS = "commits"
@@ -157,25 +158,29 @@ def _record_files(location: Location, folder: str) -> list[str]:
     return [f"{folder}/{name}" for name in location.listdir(folder) if name.endswith(".json")]
 
 
-def read_commits(location: Location) -> tuple[list[CommitRecord], list[str]]:
-    """Commit records that parse, sorted by task id, and one problem line for each that does not
-    (so `storage.validate` can name every damaged record instead of stopping at the first)."""
+def read_commits(location: Location) -> tuple[list[CommitRecord], list[Problem]]:
+    """Commit records that parse, sorted by task id, and a problem for each that does not (so
+    `storage.validate` can name every damaged record instead of stopping at the first)."""
     records, problems = _read_all(location, COMMITS, CommitRecord)
     return sorted(records, key=lambda r: r.task_id), problems
 
 
-def read_failure_records(location: Location) -> tuple[list[FailureRecord], list[str]]:
-    """Failure records that parse and one problem line for each that does not."""
+def read_failure_records(location: Location) -> tuple[list[FailureRecord], list[Problem]]:
+    """Failure records that parse and a problem for each that does not."""
     return _read_all(location, FAILURES, FailureRecord)
 
 
-def _read_all(location: Location, folder: str, model: type[Record]) -> tuple[list[Record], list[str]]:
-    records, problems = [], []
+def _read_all(location: Location, folder: str, model: type[Record]) -> tuple[list[Record], list[Problem]]:
+    """The records of ``folder`` that parse; a damaged one (``<folder>/<task>.json``) is mended by
+    re-running its task."""
+    records: list[Record] = []
+    problems: list[Problem] = []
     for relative in _record_files(location, folder):
         try:
             records.append(_parse(location, relative, model))
         except DamagedFile as exc:
-            problems.append(f"{relative}: {exc.problem}; {RERUN_FIX}")
+            task = relative.rsplit("/", 1)[-1].removesuffix(".json")
+            problems.append(Problem("record", relative, f"{exc.problem}; {RERUN_FIX}", Mend.TASK, task))
     return records, problems
 
 

@@ -18,6 +18,10 @@ from datagen.cli.common import UrlArgument, dataset_options, progress_bar, say, 
 
 if TYPE_CHECKING:
     from datagen.inspection.label_check import LabelReport
+    from storage.problems import Problem
+
+UNCOVERED_KIND = "uncovered"
+"""`storage.validate`'s kind for a label that leaves keys of its U uncovered."""
 
 
 def validate(
@@ -53,12 +57,12 @@ def validate(
                 shard_check=checker,
                 progress=lambda done, total: bar.update(shards, completed=done, total=total),
             )
-        problems = found.problems
+        problems = found.lines
         if checker is not None:
             report = checker.finish()
         checked, tasks = (report.checked, report.shards) if report is not None else (0, 0)
         if report is not None:
-            problems.extend(_new_label_lines(problems, report))
+            problems.extend(_new_label_lines(found.problems, report))
         for line in problems:
             say(line)
         for line in found.warnings:
@@ -75,18 +79,18 @@ def _count(number: int, noun: str) -> str:
     return f"{number} {noun}{'s' if number != 1 else ''}"
 
 
-def _new_label_lines(storage_lines: list[str], report: LabelReport) -> list[str]:
-    """The label checker's lines, minus those storage already printed for the same shard or row."""
+def _new_label_lines(storage_problems: list[Problem], report: LabelReport) -> list[str]:
+    """The label checker's lines, minus those storage already reported for the same shard or row (from
+    the records: the shard a problem is in, the sample whose label leaves keys of U uncovered)."""
     from datagen.inspection.label_check import UNCOVERED, UNREADABLE
 
-    shard_level = {line.split(":", 1)[0] for line in storage_lines}
+    damaged_shards = {p.file for p in storage_problems if not p.place}
+    uncovered = {(p.file, p.place) for p in storage_problems if p.kind == UNCOVERED_KIND}
     lines = []
     for problem in report.problems:
-        if problem.kind == UNREADABLE and problem.shard in shard_level:
+        if problem.kind == UNREADABLE and problem.shard in damaged_shards:
             continue
-        if problem.kind == UNCOVERED and any(
-            line.startswith(f"{problem.shard} row {problem.row}: label leaves") for line in storage_lines
-        ):
+        if problem.kind == UNCOVERED and (problem.shard, f"row {problem.row}") in uncovered:
             continue
         lines.append(problem.line)
     return lines

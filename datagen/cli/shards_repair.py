@@ -40,9 +40,9 @@ def repair(
         if summary.sound:
             say(f"nothing to repair: {url} is sound ({summary.samples} samples); nothing was changed")
             return
-        for task_id, problem in sorted(summary.repaired.items()):
-            say(f"re-ran {task_id}: {problem}")
-        for line in summary.index_problems:
-            say(f"index finalised again: {line}")
+        for task_id, line in sorted(summary.repaired.items()):
+            say(f"re-ran {task_id}: {line}")
+        for problem in summary.index_problems:
+            say(f"index finalised again: {problem.line}")
         say(f"repaired: {len(summary.repaired)} tasks re-run (jobs {', '.join(summary.jobs) or '-'}), index finalised")
         say(f"ok: {url} is sound ({summary.samples} samples)")

@@ -22,6 +22,7 @@ from datagen.engine.serve import ledger_for
 from datagen.settings import RunSettings
 from jobs.ledger import DONE, Job, Ledger
 from storage import Location, StorageError, check_store, finalise, open_location, read_commits, validate_dataset
+from storage.problems import Problem
 from storage.repair import Findings, sort_problems, withdraw
 
 LOST_COMMIT = "commit record missing although the ledger has the task done"
@@ -32,7 +33,7 @@ class RepairSummary:
     url: str
     repaired: dict[str, str] = field(default_factory=dict)
     """task id -> the first problem that made it re-run."""
-    index_problems: list[str] = field(default_factory=list)
+    index_problems: list[Problem] = field(default_factory=list)
     """Problems of the merged index alone (mended by finalising it again)."""
     jobs: list[str] = field(default_factory=list)
     samples: int = 0
@@ -60,7 +61,9 @@ def repair_dataset(url: str, settings: RunSettings, progress: ProgressCallback |
     ledger = ledger_for(settings)
     try:
         jobs = _jobs_writing(ledger, url)
-        redo = {task: lines[0] for task, lines in found.tasks.items()} | _lost_commits(ledger, jobs, location)
+        redo = {task: problems[0].line for task, problems in found.tasks.items()} | _lost_commits(
+            ledger, jobs, location
+        )
         if not redo and not found.index:
             return RepairSummary(url, jobs=[j.job_id for j in jobs], samples=_samples(url, options))
         owners = _owners(ledger, jobs, sorted(redo), url, settings, found)

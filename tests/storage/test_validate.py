@@ -314,3 +314,50 @@ def test_commit_record_disagreeing_with_the_shard(ds: Path) -> None:
     found = problems(ds)
     assert lines_naming(found, SHARD, "disagree with the commit record")
     assert lines_naming(found, FRAGMENT, "rows for")
+
+
+# -- the records behind the lines ----------------------------------------------------------------
+
+
+def test_problems_are_records_and_repair_sorts_them_whatever_their_wording(ds: Path) -> None:
+    """A truncated chunk, a deleted commit record under a finalised index, a damaged failure record and a
+    stale merged index: each problem names its file, task, array and place, and what mends it; sorting
+    them for repair gives the same tasks, index and rest when every message is reworded."""
+    import dataclasses
+
+    from storage import Mend, Problem
+    from storage.index import INDEX_COVERAGE_FILE
+    from storage.repair import sort_problems
+    from storage.validate import validate_dataset
+
+    finalise(open_location(str(ds)))
+    first, second = sorted(fx.task_ids())
+    chunk = next(p for p in sorted((ds / SHARD).rglob("*")) if p.is_file() and "/c/" in str(p) and "points" in str(p))
+    chunk.write_bytes(chunk.read_bytes()[:7])
+    (ds / commit_path(second)).unlink()
+    (ds / "failures").mkdir(exist_ok=True)
+    (ds / "failures" / "deadbeefdeadbeef-r0.json").write_text("{not json")
+    found = validate_dataset(str(ds), full=True).problems
+    assert all(isinstance(p, Problem) and p.line == str(p) for p in found)
+    by_task = {p.task for p in found if p.mend is Mend.TASK}
+    assert by_task == {first, second, "deadbeefdeadbeef-r0"}
+    shard_problem = next(p for p in found if p.task == first)
+    assert shard_problem.file.startswith(SHARD) and shard_problem.kind in ("array", "shard")
+    lost = next(p for p in found if p.task == second)
+    assert (lost.file, lost.kind, lost.mend) == (INDEX_COVERAGE_FILE, "index", Mend.TASK)
+    sorted_once = sort_problems(found)
+    reworded = [dataclasses.replace(p, message=f"reworded {n}") for n, p in enumerate(found)]
+    sorted_again = sort_problems(reworded)
+    assert {t: len(ps) for t, ps in sorted_again.tasks.items()} == {t: len(ps) for t, ps in sorted_once.tasks.items()}
+    assert len(sorted_again.index) == len(sorted_once.index) and len(sorted_again.other) == len(sorted_once.other)
+    assert [p.line.split(": ", 1)[1] for p in reworded] == [f"reworded {n}" for n in range(len(found))]
+
+
+def test_an_unreachable_store_is_its_own_error_not_a_problem(tmp_path: Path) -> None:
+    from storage import StorageError, StoreUnreachable
+    from storage.store_errors import storage_failure
+
+    error = storage_failure("s3://bucket/data", ConnectionRefusedError("connection refused"))
+    assert isinstance(error, StoreUnreachable) and isinstance(error, StorageError)
+    local = storage_failure(str(tmp_path / "x"), PermissionError("denied"))
+    assert isinstance(local, StoreUnreachable) and "check the path and its permissions" in str(local)

@@ -33,7 +33,7 @@ from datagen import api
 from datagen.cli.main import app
 from datagen.settings import RunSettings
 from jobs.ledger import DONE
-from storage import Location, StorageError, committed_tasks, open_dataset, open_location, validate
+from storage import Location, StorageError, committed_tasks, open_dataset, open_location, validate, validate_dataset
 from storage.writer import commit_path
 
 pytestmark = [
@@ -167,3 +167,28 @@ def test_repair_mends_each_damage_to_the_undamaged_samples(runner: CliRunner, ma
             f"{after[task_id]}.{kind}" for kind in ("parquet", "zarr")
         ), f"{what}: the damaged attempt's files were not swept"
         before = after
+
+
+def test_repair_reads_the_records_not_the_messages(
+    runner: CliRunner, reference: str, inputs: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every validation message reworded (and every line with it): repair still finds and re-runs exactly
+    the damaged task, from the problems' records."""
+    import dataclasses
+
+    from datagen.engine import repair as engine_repair
+
+    def reworded(*args: object, **kwargs: object) -> object:
+        found = validate_dataset(*args, **kwargs)  # type: ignore[arg-type]
+        problems = [dataclasses.replace(p, message=f"something else #{n}") for n, p in enumerate(found.problems)]
+        return dataclasses.replace(found, problems=problems)
+
+    monkeypatch.setattr(engine_repair, "validate_dataset", reworded)
+    made = Made(make(inputs, tmp_path / "home", str(tmp_path / "dataset")), tmp_path / "home", reference)
+    location = open_location(made.url)
+    task_id = sorted(r.task_id for r in committed_tasks(location))[0]
+    truncate_array(location, task_id)
+    output = repair(runner, made)
+    assert f"re-ran {task_id}: " in output and "something else #" in output and output.count("re-ran ") == 1
+    assert validate(made.url, full=True) == []
+    assert assert_same_samples(made.url, made.reference) > 0
