@@ -18,6 +18,7 @@ from zarr.core.array_spec import ArrayConfigParams
 from zarr.storage import FsspecStore, LocalStore
 
 from schemas.shard import ShardAttributes, array_names
+from storage.codec import COMPRESSORS
 from storage.location import Location, damaged, first_line, is_temporary
 from storage.store_errors import is_store_failure, storage_failure
 
@@ -26,11 +27,6 @@ WRITE_EVERY_CHUNK: ArrayConfigParams = {"write_empty_chunks": True}
 """zarr skips a chunk that holds only the fill value (zeros) and reads it back as zeros; a reader
 could not tell it from a lost file. Every chunk is written, so a missing chunk file always means
 damage (a task whose every label is empty stores all-zero covers)."""
-COMPRESSORS = (
-    zarr.codecs.BloscCodec(cname="zstd", clevel=3, shuffle=zarr.codecs.BloscShuffle.shuffle),
-    # A checksum per chunk: Blosc alone may decode a truncated chunk into garbage without an error.
-    zarr.codecs.Crc32cCodec(),
-)
 
 
 def zarr_store(location: Location, relative: str, read_only: bool) -> Any:

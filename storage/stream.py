@@ -44,8 +44,6 @@ given the same worker count and world size.
 from __future__ import annotations
 
 import itertools
-import json
-import math
 import os
 import queue
 import threading
@@ -54,8 +52,6 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-import google_crc32c
-import numcodecs.blosc
 import numpy as np
 import numpy.typing as npt
 import torch
@@ -63,6 +59,7 @@ import zarr
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from schemas.shard import COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
+from storage.codec import whole_array
 from storage.covers import cover_marginals
 from storage.location import Location, open_location
 from storage.reader import Dataset, open_dataset
@@ -448,96 +445,6 @@ class _MetadataKept(Location):
         if found is None:
             found = self.kept[relative] = super().read_bytes(relative)
         return found
-
-
-PLAIN_BYTES = {"name": "bytes", "configuration": {"endian": "little"}}
-CHECKSUM = {"name": "crc32c"}
-NO_CHUNK = 2**64 - 1
-"""A shard index entry of an inner chunk that was never written."""
-
-
-def whole_array(reader: ShardReader, name: str) -> npt.NDArray[Any]:
-    """Array ``name`` of a verified shard, whole: decoded here when it has the layout `storage.shards`
-    writes (little-endian bytes, Blosc, CRC32C; one chunk, or one shard file of inner chunks with its
-    index at the end), every chunk's and the index's CRC32C checked; anything else, and any failure
-    (a missing or corrupt file), is read again through `ShardReader.array`, which raises the reader's
-    own `StorageError` for damage. The same values as zarr's read, for a third of its CPU time (zarr's
-    per-chunk machinery costs more than the decompression itself on a whole-shard read)."""
-    try:
-        found = _decode_whole(reader.location, f"{reader.relative}/{name}")
-    except Exception:
-        found = None
-    return found if found is not None else reader.array(name)
-
-
-def _decode_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
-    """The whole array at ``relative``, or None when its layout is not the one decoded here."""
-    meta = json.loads(location.read_bytes(f"{relative}/zarr.json"))
-    grid = meta["chunk_grid"]
-    encoding = meta["chunk_key_encoding"]
-    if (
-        meta.get("zarr_format") != 3
-        or meta.get("node_type") != "array"
-        or meta.get("storage_transformers")
-        or grid.get("name") != "regular"
-        or encoding != {"name": "default", "configuration": {"separator": "/"}}
-    ):
-        return None
-    shape = tuple(int(size) for size in meta["shape"])
-    dtype = np.dtype(meta["data_type"]).newbyteorder("<")
-    outer = tuple(int(size) for size in grid["configuration"]["chunk_shape"])
-    if len(outer) != len(shape) or any(step < size for step, size in zip(outer, shape, strict=True)):
-        return None  # more than one chunk or shard file
-    if math.prod(shape) == 0:
-        return np.zeros(shape, dtype=dtype)
-    data = location.read_bytes(f"{relative}/c/{'/'.join('0' * len(shape))}")
-    codecs = meta["codecs"]
-    whole = tuple(slice(0, size) for size in shape)
-    if _plain(codecs):
-        return _chunk(data, outer, dtype)[whole]
-    if len(codecs) != 1 or codecs[0].get("name") != "sharding_indexed":
-        return None
-    config = codecs[0]["configuration"]
-    inner = tuple(int(size) for size in config["chunk_shape"])
-    if (
-        config.get("index_location", "end") != "end"
-        or config.get("index_codecs") != [PLAIN_BYTES, CHECKSUM]
-        or not _plain(config["codecs"])
-        or len(inner) != len(outer)
-        or any(o % i for o, i in zip(outer, inner, strict=True))
-    ):
-        return None
-    counts = tuple(o // i for o, i in zip(outer, inner, strict=True))
-    index = _checked(data[-(16 * math.prod(counts) + 4) :])
-    entries = np.frombuffer(index, dtype="<u8").reshape(-1, 2)
-    out = np.empty(outer, dtype=dtype)
-    for number, (start, size) in enumerate(entries.tolist()):
-        if start == NO_CHUNK:
-            return None  # zarr reads it as the fill value: leave that to zarr
-        where = np.unravel_index(number, counts)
-        place = tuple(slice(k * step, (k + 1) * step) for k, step in zip(where, inner, strict=True))
-        out[place] = _chunk(data[start : start + size], inner, dtype)
-    return out[whole]
-
-
-def _plain(codecs: list[dict[str, Any]]) -> bool:
-    return len(codecs) == 3 and codecs[0] == PLAIN_BYTES and codecs[1].get("name") == "blosc" and codecs[2] == CHECKSUM
-
-
-def _checked(data: bytes) -> bytes:
-    """The bytes before a CRC32C suffix, which must match them."""
-    body = data[:-4]
-    if len(data) < 4 or np.uint32(google_crc32c.value(body)).tobytes() != data[-4:]:
-        raise ValueError("checksum mismatch")
-    return body
-
-
-def _chunk(data: bytes, shape: tuple[int, ...], dtype: np.dtype[Any]) -> npt.NDArray[Any]:
-    """One Blosc chunk with its CRC32C, as an array of ``shape``."""
-    decoded = numcodecs.blosc.decompress(_checked(data))
-    if len(decoded) != math.prod(shape) * dtype.itemsize:
-        raise ValueError("chunk of the wrong size")
-    return np.frombuffer(decoded, dtype=dtype).reshape(shape)
 
 
 def _round_robin(counts: Sequence[int], taken: int) -> tuple[list[int], int]:
