@@ -90,25 +90,56 @@ class JobProgress:
 ProgressCallback = Callable[[JobProgress], None]
 
 
-def ensure_ray(address: str | None, num_cpus: int | None) -> None:
-    """Connect to a cluster (address or RAY_ADDRESS) or start a local Ray once per process."""
+CLIENT_SESSION_WAIT = 120.0
+"""Seconds a connection to a Ray client server waits out a refusal of a new client: after its driver was
+killed, the server holds the lost driver's session for up to a minute (measured: a client 10 s after a
+SIGKILL is refused after 45 s, one 55 s after succeeds), and a `datagen resume` right away must work."""
+CLIENT_REFUSAL = "Initialization failure from server"
+"""How Ray's client says the server refused to start its session (the reason, if any, follows)."""
+
+
+def ensure_ray(address: str | None, num_cpus: int | None, notice: Callable[[str], None] | None = None) -> None:
+    """Connect to a cluster (address or RAY_ADDRESS) or start a local Ray once per process.
+
+    A Ray client server that refuses the session (it still holds a lost driver's) is asked again until
+    `CLIENT_SESSION_WAIT` has passed, ``notice`` told once with how long; a refusal past that, or a
+    client port that does not answer, is one `DatagenError` line with Ray's whole reason.
+    """
     import ray
 
     if ray.is_initialized():
         return
     env = {"env_vars": {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}}
     if address:
-        try:
-            ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.ERROR)
-        except ValueError as exc:  # a ray:// address without Ray's client extra installed
-            if "ray[client]" not in str(exc):
-                raise
-            raise DatagenError(
-                f"{address}: Ray's client is not installed here; pip install 'ray[client]=={ray.__version__}' "
-                "(or this project with its cluster extra)"
-            ) from None
-        except ConnectionError as exc:  # the head's client port does not answer (Ray gives up after ~30 s)
-            raise DatagenError(f"cannot reach the Ray cluster at {address}: {str(exc).splitlines()[0]}") from None
+        deadline = time.monotonic() + CLIENT_SESSION_WAIT
+        told = False
+        while True:
+            try:
+                ray.init(address=address, runtime_env=env, log_to_driver=False, logging_level=logging.ERROR)
+                return
+            except ValueError as exc:  # a ray:// address without Ray's client extra installed
+                if "ray[client]" not in str(exc):
+                    raise
+                raise DatagenError(
+                    f"{address}: Ray's client is not installed here; pip install 'ray[client]=={ray.__version__}' "
+                    "(or this project with its cluster extra)"
+                ) from None
+            except ConnectionError as exc:  # the client port does not answer, or the server refuses us
+                reason = " ".join(str(exc).split())
+                refused = CLIENT_REFUSAL in reason
+                if not refused or time.monotonic() >= deadline:
+                    raise DatagenError(
+                        f"cannot reach the Ray cluster at {address}: {reason or type(exc).__name__}"
+                    ) from None
+                if not told and notice is not None:
+                    left = max(0.0, deadline - time.monotonic())
+                    notice(
+                        f"the Ray client server at {address} refused a new session (it may still hold a lost "
+                        f"driver's); asking again for up to {left:.0f} s"
+                    )
+                    told = True
+                _shutdown_client(ray)
+                time.sleep(min(5.0, max(0.0, deadline - time.monotonic())))
     else:
         # "local": always a private Ray of our own, even when `ray start` left a cluster running on
         # this machine (joining it would need --address, and would ignore --workers).
@@ -120,6 +151,21 @@ def ensure_ray(address: str | None, num_cpus: int | None) -> None:
             log_to_driver=False,
             logging_level=logging.ERROR,
         )
+
+
+def _waiting_notice(progress: ProgressCallback | None, total: int) -> Callable[[str], None] | None:
+    """A notice for the progress display's waiting line (what `datagen submit|resume` print once)."""
+    if progress is None:
+        return None
+    return lambda text: progress(JobProgress(total=total, waiting=text))
+
+
+def _shutdown_client(ray: Any) -> None:
+    """Forget a half-made client connection before asking again (Ray keeps some state after a failed init)."""
+    try:
+        ray.shutdown()
+    except Exception:  # nothing was connected: nothing to forget
+        return
 
 
 def _remote_execute(
@@ -193,7 +239,7 @@ def run_job(
         for number, line_error in enumerate(spec.line_errors):
             origin, _, message = line_error.partition(": ")
             write_failure(location, failure_record(f"line-{number:04d}", message, origin=origin))
-    ensure_ray(address, num_cpus)
+    ensure_ray(address, num_cpus, _waiting_notice(progress, len(spec.tasks)))
     if refiner_gpus > 0 and not ray.cluster_resources().get("GPU", 0):
         raise ConfigError(
             f"refiner_gpus = {refiner_gpus:g} but the Ray cluster has no GPU; drop --refiner-gpus to refine on CPU"
