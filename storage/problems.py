@@ -46,9 +46,10 @@ class Problem:
 
     @property
     def line(self) -> str:
-        """The printed line: ``FILE[ PLACE]: MESSAGE``."""
-        where = f"{self.file} {self.place}" if self.place else self.file
-        return f"{where}: {self.message}"
+        """The printed line: ``FILE[ PLACE]: MESSAGE``, or the message alone where no file is named
+        (a folder with no dataset at all: the message names the URL itself)."""
+        where = " ".join(part for part in (self.file, self.place) if part)
+        return f"{where}: {self.message}" if where else self.message
 
     def __str__(self) -> str:
         return self.line

@@ -347,10 +347,11 @@ class InterpAttentionKHeadsNet(nn.Module):
         assert bias is not None  # fc1 is built with a bias
         return torch.matmul(w_pos, queries) + bias[:, None]
 
-    def forward_inference(self, point_terms: Tensor, query_terms: Tensor, index: Tensor) -> Tensor:
-        """The channels-first `forward_fast` after its `query_terms`, for inference: the same operations
-        on the same values in the same order, with less memory traffic (neighbour rows gathered by one
-        ``index_select``, fresh intermediates updated in place; no autograd). Logits (B, 2, M)."""
+    def pooled_inference(self, point_terms: Tensor, query_terms: Tensor, index: Tensor) -> Tensor:
+        """The channels-first `forward_fast` from its `query_terms` up to the attention-pooled features
+        (B, L, M), for inference: the same operations on the same values in the same order, with less
+        memory traffic (neighbour rows gathered by one ``index_select``, fresh intermediates updated in
+        place; no autograd). `head_inference` finishes the logits."""
         batch, channels, _ = point_terms.shape
         if batch == 1:
             rows = point_terms[0].index_select(1, index.reshape(-1)).view(1, channels, *index.shape[1:])
@@ -360,7 +361,11 @@ class InterpAttentionKHeadsNet(nn.Module):
         h = F.conv2d(h, self.fc2.weight, self.fc2.bias).relu_()
         h = F.conv2d(h, self.fc3.weight, self.fc3.bias).relu_()
         attention = torch.softmax(F.conv2d(h, self.fc_query.weight, self.fc_query.bias), dim=3).mean(dim=1)
-        pooled = h.mul_(attention.unsqueeze(1)).sum(dim=3)  # (B, L, M)
+        pooled: Tensor = h.mul_(attention.unsqueeze(1)).sum(dim=3)  # (B, L, M)
+        return pooled
+
+    def head_inference(self, pooled: Tensor) -> Tensor:
+        """Logits (B, 2, M) from pooled features: `forward_fast`'s value and output convolutions."""
         values = F.conv1d(pooled, self.fc_value.weight.flatten(2), self.fc_value.bias)
         out: Tensor = F.conv1d(values, self.fc8.weight, self.fc8.bias)
         return out
@@ -472,15 +477,17 @@ class PocoModel(nn.Module):
         """Logits (B, 2, M) bit-identical to ``decode(..., chunk_size=reference_chunk)`` (fast layout),
         faster, without gradients.
 
-        Some kernels round differently on tiny inputs: the (L x 3) @ (3 x m) matmul of the per-query
-        fc1 term for m <= 8 and the value convolutions for m = 1 (MKL and oneDNN small-size paths);
-        the 1x1 convolutions, softmax and reductions give the same bits at every size. So the query
-        terms are computed in `decode`'s chunks of ``reference_chunk``, and each such chunk is decoded
-        in sub-chunks of `_INFERENCE_BUDGET` elements per activation (1024 queries for the small
-        preset: 8192-query activations, 16 MiB, ran 2.4x slower than ones that stay in a core's
-        cache), never leaving a sub-chunk of fewer than 64 queries unless the chunk itself is that
-        small. The channels-last layout (wide decoders) and accelerators (whose kernels choose
-        algorithms by size in other ways; not verified) run `decode` itself.
+        Some kernels round differently by input size, and which ones depends on the CPU: the
+        (L x 3) @ (3 x m) matmul of the per-query fc1 term for m <= 8 (MKL), the value convolution
+        for m = 1, and on AVX2-only CPUs (AMD EPYC) the two-channel output convolution at many sizes
+        (oneDNN); the 1x1 convolutions over (B, L, m, K), softmax and reductions give the same bits at
+        every size. So the query terms and the two per-query convolutions (cheap: no K axis) run on
+        `decode`'s chunks of ``reference_chunk``, at exactly its shapes; only the neighbour part, which
+        is nearly all the work, runs in sub-chunks of `_INFERENCE_BUDGET` elements per activation
+        (1024 queries for the small preset: 8192-query activations, 16 MiB, ran 2.4x slower than
+        ones that stay in a core's cache), never leaving a sub-chunk of fewer than 64 queries unless
+        the chunk itself is that small. The channels-last layout (wide decoders) and accelerators
+        (whose kernels choose algorithms by size in other ways; not verified) run `decode` itself.
         """
         decoder = self.projection
         if decoder.channels_last or not self.fast_decoder or queries.device.type != "cpu":
@@ -498,9 +505,11 @@ class PocoModel(nn.Module):
                 cuts = list(range(0, stop - start, step))
                 if len(cuts) > 1 and stop - start - cuts[-1] < 64:
                     cuts.pop()  # the remainder joins the previous sub-chunk
-                for a, b in zip(cuts, [*cuts[1:], stop - start], strict=True):
-                    index = knn[:, start + a : start + b]
-                    parts.append(decoder.forward_inference(point_terms, query_terms[:, :, a:b], index))
+                pooled = [
+                    decoder.pooled_inference(point_terms, query_terms[:, :, a:b], knn[:, start + a : start + b])
+                    for a, b in zip(cuts, [*cuts[1:], stop - start], strict=True)
+                ]
+                parts.append(decoder.head_inference(pooled[0] if len(pooled) == 1 else torch.cat(pooled, dim=2)))
         if not parts:
             return latents.new_zeros((batch, 2, 0))
         return parts[0] if len(parts) == 1 else torch.cat(parts, dim=2)
