@@ -24,9 +24,8 @@ import torch
 from osvp.data import SampleBank
 from osvp.loss import sc_loss
 from osvp.network import build_network
-from torch.utils.data import DataLoader
 
-from storage.torch import OSVPDataset, ShardShuffleSampler
+from storage.torch import OSVPDataset
 
 
 def rate(count: int, seconds: float) -> float:
@@ -42,13 +41,13 @@ def main() -> None:
     args = parser.parse_args()
 
     dataset = OSVPDataset(args.data, num_points=args.points)
-    loader = DataLoader(dataset, batch_size=args.batch, sampler=ShardShuffleSampler(dataset), num_workers=2)
+    loader = dataset.loader(args.batch, shuffle_seed=0, num_workers=2)
     seen, started = 0, None
     for batch in loader:
         if started is None:
             started = time.perf_counter()
             continue
-        seen += int(batch["points"].shape[0])
+        seen += len(batch)
         if time.perf_counter() - started > args.seconds:
             break
     baseline = rate(seen, time.perf_counter() - (started or time.perf_counter()))
@@ -69,11 +68,11 @@ def main() -> None:
     clock, trained = time.perf_counter(), 0
     while time.perf_counter() - clock < args.seconds:
         batch = bank.batch(order[trained % len(order) :][: args.batch], 1024, seed=0, epoch=0)
-        loss = sc_loss(network(batch.points, batch.view_state), batch.labels)
+        loss = sc_loss(network(batch.points, batch.view_state), batch.label)
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
-        trained += int(batch.labels.shape[0])
+        trained += int(batch.label.shape[0])
     train_rate = rate(trained, time.perf_counter() - clock)
 
     print(

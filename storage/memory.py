@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -27,7 +27,6 @@ import numpy.typing as npt
 from schemas.shard import (
     COVER_ROWS,
     COVERS,
-    KEY_SETS,
     LABEL_COLUMN,
     MASKS,
     VIEW_STATE_COLUMN,
@@ -35,9 +34,8 @@ from schemas.shard import (
     offsets_array,
 )
 from storage.reader import Dataset, open_dataset
-from storage.samples import key_centres, mask_bits, resample_indices
+from storage.samples import SampleBatch, Source, bit_rows, check_source, key_centres, resample_indices
 
-Source = Literal["points", "observed"]
 Progress = Callable[[int, int], None]
 """Called with (samples read, samples to read) after each shard."""
 MaskArray = npt.NDArray[np.uint64]
@@ -67,18 +65,6 @@ class PackedCovers:
 
     def universe_of(self, position: int) -> MaskArray:
         return self.universe[self.universe_offsets[position] : self.universe_offsets[position + 1]]
-
-
-@dataclass(frozen=True)
-class ArrayBatch:
-    """Samples as plain numpy arrays (what `storage.torch.OSVPDataset` gives as tensors)."""
-
-    points: npt.NDArray[np.float32]
-    """(B, N, 3) key centres, metres."""
-    view_state: npt.NDArray[np.float32]
-    """(B, n) 0/1."""
-    label: npt.NDArray[np.float32]
-    """(B, n) 0/1."""
 
 
 @dataclass(frozen=True)
@@ -129,14 +115,16 @@ class MemoryDataset:
                 chosen[slot] = self.keys[start + resample_indices(stop - start, num_points, seed, epoch, stream)]
         return chosen
 
-    def batch(self, positions: Rows, num_points: int, seed: int, epoch: int) -> ArrayBatch:
+    def batch(self, positions: Rows, num_points: int, seed: int, epoch: int) -> SampleBatch[npt.NDArray[Any]]:
         """The samples at ``positions`` (0 to len - 1), each resampled to ``num_points`` from its
-        own stream: the same arrays whatever the batch, its order or what else was loaded."""
+        own stream: the same arrays whatever the batch, its order or what else was loaded. Its
+        ``index`` holds their dataset rows; cover fields are the caller's (osvp's `CoverBank`)."""
         index = np.asarray(positions, dtype=np.int64).reshape(-1)
-        return ArrayBatch(
+        return SampleBatch(
             points=key_centres(self.resampled_keys(index, num_points, seed, epoch), self.voxel_size, self.grid_offset),
             view_state=self.view_state[index],
             label=self.labels[index],
+            index=self.rows[index],
         )
 
 
@@ -157,10 +145,9 @@ def load_memory(
     version-2 dataset's minimum covers unread. A damaged dataset is a `StorageError` naming the
     file and the fix (`storage.reader`).
     """
-    if source not in KEY_SETS:
-        raise ValueError(f"source = {source!r}: use 'points' (refined) or 'observed'")
+    check_source(source)
     found = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, storage_options)
-    chosen = _chosen_rows(found, rows, objects)
+    chosen = found.chosen_rows(rows, objects)
     index = found.index
     shards = index.column("shard").to_pylist()
     shard_rows = index.column("row").to_numpy().astype(np.int64, copy=False)
@@ -255,31 +242,11 @@ def _held(
         offsets=offsets,
         view_state_masks=state_masks,
         label_masks=label_masks,
-        view_state=mask_bits(state_masks, width).astype(np.float32),
-        labels=mask_bits(label_masks, width).astype(np.float32),
+        view_state=bit_rows(state_masks, width),
+        labels=bit_rows(label_masks, width),
         object_ids=tuple(object_column[row] for row in chosen.tolist()),
         covers=covers,
     )
-
-
-def _chosen_rows(dataset: Dataset, rows: Rows | None, objects: Sequence[str] | None) -> npt.NDArray[np.int64]:
-    """The dataset rows to hold, in order: ``rows`` (or all), kept where their object is listed."""
-    total = len(dataset)
-    if rows is None:
-        chosen = np.arange(total, dtype=np.int64)
-    else:
-        chosen = np.asarray(rows, dtype=np.int64).reshape(-1)
-        if chosen.size and (chosen.min() < 0 or chosen.max() >= total):
-            raise IndexError(f"rows must lie in 0 to {total - 1} ({dataset.url} holds {total} samples)")
-        if np.unique(chosen).size != chosen.size:
-            raise ValueError("rows repeat a sample; give each dataset row once")
-    if objects is not None:
-        wanted = {objects} if isinstance(objects, str) else set(objects)
-        ids = dataset.index.column("object_id").to_pylist()
-        names = dataset.index.column("object_name").to_pylist()
-        keep = [ids[row] in wanted or names[row] in wanted for row in chosen.tolist()]
-        chosen = chosen[np.asarray(keep, dtype=bool)]
-    return chosen
 
 
 def _ragged_index(starts: npt.NDArray[np.int64], sizes: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:

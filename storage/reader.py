@@ -188,6 +188,29 @@ class Dataset:
         return sample
 
     # -- selections ---------------------------------------------------------------------------
+    def chosen_rows(
+        self, rows: npt.ArrayLike | None = None, objects: Sequence[str] | str | None = None
+    ) -> npt.NDArray[np.int64]:
+        """The rows a reader holds, in order: ``rows`` (each once; all rows when None), kept where
+        their object (id or name) is among ``objects`` (when given). Every reader chooses through
+        this: an out-of-range row is an `IndexError`, a repeated one a `ValueError`."""
+        total = len(self)
+        if rows is None:
+            chosen = np.arange(total, dtype=np.int64)
+        else:
+            chosen = np.asarray(rows, dtype=np.int64).reshape(-1)
+            if chosen.size and (chosen.min() < 0 or chosen.max() >= total):
+                raise IndexError(f"rows must lie in 0 to {total - 1} ({self.url} holds {total} samples)")
+            if np.unique(chosen).size != chosen.size:
+                raise ValueError("rows repeat a sample (a row given more than once); give each dataset row once")
+        if objects is not None:
+            wanted = {objects} if isinstance(objects, str) else set(objects)
+            ids = self.index.column("object_id").to_pylist()
+            names = self.index.column("object_name").to_pylist()
+            keep = [ids[row] in wanted or names[row] in wanted for row in chosen.tolist()]
+            chosen = chosen[np.asarray(keep, dtype=bool)]
+        return chosen
+
     def select(self, rows: npt.ArrayLike) -> Dataset:
         """A dataset over a subset of index rows (in the given order)."""
         chosen = self.index.take(pa.array(np.asarray(rows, dtype=np.int64)))

@@ -9,6 +9,10 @@ the same things through these functions:
 - a cloud is resampled to a fixed point count from its own stream ``(seed, epoch, index)``, with
   replacement only when it holds fewer points, so a tensor never depends on batch size, worker
   count or read order; an empty cloud becomes ``num_points`` zero keys;
+- a batch of samples is one `SampleBatch` whatever read it (`storage.memory`, `storage.stream`,
+  `storage.torch`, osvp): its numpy arrays, or the same as torch tensors (`SampleBatch.tensors`); the
+  listed minimum covers are padded to the batch's longest listing by `padded_covers`;
+- the rows a reader holds are chosen once, by `storage.reader.Dataset.chosen_rows`;
 - a split by object holds out ``round(fraction * objects)`` objects (at least one when the fraction
   is positive) drawn by a permutation seeded with ``(seed, number of objects)``, so every sample of an
   object lands on one side; a split by sample permutes the rows with ``(seed, number of samples)``.
@@ -16,18 +20,109 @@ the same things through these functions:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields
+from typing import TYPE_CHECKING, Any, Generic, Literal, TypeVar
 
 import numpy as np
 import numpy.typing as npt
 
 from schemas.errors import DatagenError
 
+if TYPE_CHECKING:
+    import torch
+
 KeyArray = npt.NDArray[np.int16]
+Source = Literal["points", "observed"]
+"""Which cloud a reader gives: the refined one P(O_S) (``points``) or what the input views saw."""
+SOURCES: tuple[Source, ...] = ("points", "observed")
+
+ArrayT = TypeVar("ArrayT")
+OtherT = TypeVar("OtherT")
 
 
 class SplitError(DatagenError, ValueError):
     """A split cannot be made as asked (a fraction out of range, too few samples or objects)."""
+
+
+def check_source(source: str) -> Source:
+    """``source`` itself, or the one `ValueError` every reader gives for another word."""
+    if source not in SOURCES:
+        raise ValueError(f"source = {source!r}: use 'points' (refined) or 'observed'")
+    return source
+
+
+@dataclass(frozen=True)
+class SampleBatch(Generic[ArrayT]):
+    """Samples as one batch: what every reader gives and every trainer takes.
+
+    ``SampleBatch[np.ndarray]`` as read; `tensors` gives the same arrays as torch tensors (no copy), and
+    `to` moves them to a device. The optional fields are there when the dataset keeps minimum covers
+    (``marginals``, ``support``) and when the covers themselves were asked for (``covers``,
+    ``cover_mask``). A DataLoader pins it (`pin_memory`) and passes it through untouched.
+    """
+
+    points: ArrayT
+    """(B, N, 3) float32 key centres, metres."""
+    view_state: ArrayT
+    """(B, n) float32 0/1: the views the case already has."""
+    label: ArrayT
+    """(B, n) float32 0/1: the label's views."""
+    index: ArrayT
+    """(B,) int64: each sample's dataset row (its resampling stream)."""
+    marginals: ArrayT | None = None
+    """(B, n) float32: the fraction of the listed minimum covers holding each view."""
+    support: ArrayT | None = None
+    """(B, n) float32 0/1: the views in any minimum cover."""
+    covers: ArrayT | None = None
+    """(B, C, n) float32 0/1: the listed minimum covers, padded to the batch's longest listing."""
+    cover_mask: ArrayT | None = None
+    """(B, C) bool: True where ``covers`` holds a real cover."""
+
+    def __len__(self) -> int:
+        return len(self.index)  # type: ignore[arg-type]
+
+    def as_dict(self) -> dict[str, ArrayT]:
+        """The fields that are present, by name."""
+        found = ((field.name, getattr(self, field.name)) for field in fields(self))
+        return {name: value for name, value in found if value is not None}
+
+    def map(self, convert: Callable[[ArrayT], OtherT]) -> SampleBatch[OtherT]:
+        """Every present field through ``convert`` (absent ones stay None)."""
+        return SampleBatch(**{name: convert(value) for name, value in self.as_dict().items()})
+
+    def tensors(self: SampleBatch[npt.NDArray[Any]]) -> SampleBatch[torch.Tensor]:
+        """The same arrays as CPU tensors, sharing their memory."""
+        import torch
+
+        return self.map(torch.from_numpy)
+
+    def to(self: SampleBatch[torch.Tensor], device: Any, non_blocking: bool = False) -> SampleBatch[torch.Tensor]:
+        """Every tensor on ``device``."""
+        return self.map(lambda tensor: tensor.to(device, non_blocking=non_blocking))
+
+    def pin_memory(self: SampleBatch[torch.Tensor]) -> SampleBatch[torch.Tensor]:
+        """Every tensor in pinned memory (what a DataLoader with ``pin_memory=True`` calls)."""
+        return self.map(lambda tensor: tensor.pin_memory())
+
+
+def bit_rows(masks: int | npt.ArrayLike, width: int) -> npt.NDArray[np.float32]:
+    """0/1 float32 rows (..., width) of masks: how a view state, label or support reaches a network."""
+    return mask_bits(masks, width).astype(np.float32)
+
+
+def padded_covers(
+    listed: Sequence[npt.NDArray[np.uint64]], width: int
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.bool_]]:
+    """(covers (B, C, n) float32 0/1, valid (B, C) bool) of each sample's listed covers (masks), padded
+    with empty rows to the longest listing (C)."""
+    most = max((found.size for found in listed), default=0)
+    covers = np.zeros((len(listed), most, width), dtype=np.float32)
+    valid = np.zeros((len(listed), most), dtype=bool)
+    for slot, found in enumerate(listed):
+        covers[slot, : found.size] = mask_bits(found, width)
+        valid[slot, : found.size] = True
+    return covers, valid
 
 
 def key_centres(
@@ -47,9 +142,23 @@ def mask_bits(masks: int | npt.ArrayLike, width: int) -> npt.NDArray[np.bool_]:
 
 def resample_indices(count: int, num_points: int, seed: int, epoch: int, index: int) -> npt.NDArray[np.int64]:
     """Which of ``count`` points make the ``num_points`` of sample ``index`` in ``epoch``."""
-    rng = np.random.default_rng(np.random.SeedSequence([seed, epoch, index]))
+    return stream_indices(count, num_points, (seed, epoch, index))
+
+
+def stream_indices(count: int, num_points: int, stream: Sequence[int]) -> npt.NDArray[np.int64]:
+    """Which of ``count`` points make a cloud of ``num_points``, drawn from random stream ``stream``:
+    with replacement only when there are fewer points than asked for."""
+    rng = np.random.default_rng(np.random.SeedSequence(list(stream)))
     # shuffle=False: the order of a point set carries nothing, and it is ~40 % cheaper.
     return rng.choice(count, size=num_points, replace=count < num_points, shuffle=False)
+
+
+def resample_cloud(points: npt.NDArray[np.float32], num_points: int, stream: Sequence[int]) -> npt.NDArray[np.float32]:
+    """``num_points`` of a cloud (K, 3) in metres, drawn from ``stream`` (`stream_indices`); zeros when
+    empty. What a planner does to a scene's cloud before its network sees it."""
+    if points.shape[0] == 0:
+        return np.zeros((num_points, 3), dtype=np.float32)
+    return np.take(points, stream_indices(points.shape[0], num_points, stream), axis=0)
 
 
 def resample_keys(keys: KeyArray, num_points: int, seed: int, epoch: int, index: int) -> KeyArray:

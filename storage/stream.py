@@ -50,7 +50,7 @@ import threading
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -63,7 +63,7 @@ from storage.codec import whole_array
 from storage.covers import cover_marginals
 from storage.location import Location, open_location
 from storage.reader import Dataset, open_dataset
-from storage.samples import key_centres, mask_bits, resample_keys
+from storage.samples import SampleBatch, Source, bit_rows, check_source, key_centres, padded_covers, resample_keys
 from storage.shards import ShardReader
 
 WORKER_ZARR_CONFIG = {"codec_pipeline.batch_size": 64, "threading.max_workers": 1}
@@ -75,7 +75,7 @@ STREAM_TAG = 0x57EA4
 """Tag of the stream's own random streams (shard order, shuffle buffer), apart from the resampling
 streams (seed, epoch, index)."""
 
-Batch = dict[str, torch.Tensor]
+Batch = SampleBatch[torch.Tensor]
 
 
 @dataclass(frozen=True)
@@ -100,10 +100,10 @@ class _Part:
 
 
 class ShardStream(IterableDataset[Batch]):
-    """Batches of whole-shard reads: ``points`` (B, N, 3) float32 metres, ``view_state`` and ``label``
-    (B, n) float32 0/1, ``index`` (B,) int64 dataset rows; for a version-2 dataset also ``marginals``
-    and ``support`` (B, n) float32, and with ``covers=True`` the listed minimum covers padded to the
-    batch's largest listing, ``covers`` (B, C, n) float32 and ``cover_mask`` (B, C) bool.
+    """Batches of whole-shard reads, each a `storage.samples.SampleBatch` of tensors: ``points``,
+    ``view_state``, ``label`` and ``index`` (dataset rows); for a version-2 dataset also ``marginals``
+    and ``support``, and with ``covers=True`` the listed minimum covers padded to the batch's largest
+    listing (``covers``, ``cover_mask``).
 
     Use it with ``DataLoader(stream, batch_size=None, num_workers=W)`` (`loader` builds one): the
     batches are made in the workers, so the DataLoader has nothing to collate. ``rows`` (dataset row
@@ -119,7 +119,7 @@ class ShardStream(IterableDataset[Batch]):
         *,
         num_points: int = 2048,
         batch_size: int = 32,
-        source: Literal["points", "observed"] = "points",
+        source: Source = "points",
         seed: int = 0,
         epoch: int = 0,
         rows: npt.ArrayLike | None = None,
@@ -134,8 +134,7 @@ class ShardStream(IterableDataset[Batch]):
         skip: int = 0,
         storage_options: dict[str, Any] | None = None,
     ) -> None:
-        if source not in ("points", "observed"):
-            raise ValueError(f"source = {source!r}: use 'points' (refined) or 'observed'")
+        check_source(source)
         for name, value, least in (
             ("num_points", num_points, 1),
             ("batch_size", batch_size, 1),
@@ -178,20 +177,8 @@ class ShardStream(IterableDataset[Batch]):
     def _select(self, dataset: Dataset, rows: npt.ArrayLike | None, objects: Sequence[str] | None) -> None:
         """Group the selected dataset rows by shard (shards sorted by path, rows ascending)."""
         total = len(dataset)
-        keep = np.ones(total, dtype=bool)
-        if rows is not None:
-            chosen = np.asarray(rows, dtype=np.int64).reshape(-1)
-            if chosen.size and (chosen.min() < 0 or chosen.max() >= total):
-                raise ValueError(f"rows must lie in [0, {total}): the dataset holds {total} samples")
-            if np.unique(chosen).size != chosen.size:
-                raise ValueError("rows hold a row more than once; each sample streams once per epoch")
-            keep = np.zeros(total, dtype=bool)
-            keep[chosen] = True
-        if objects is not None:
-            wanted = {objects} if isinstance(objects, str) else set(objects)
-            ids = dataset.index.column("object_id").to_pylist()
-            names = dataset.index.column("object_name").to_pylist()
-            keep &= np.fromiter((i in wanted or n in wanted for i, n in zip(ids, names, strict=True)), bool, total)
+        keep = np.zeros(total, dtype=bool)
+        keep[dataset.chosen_rows(rows, objects)] = True
         shard_col = np.asarray(dataset.index.column("shard").to_pylist(), dtype=object)
         row_col = dataset.index.column("row").to_numpy().astype(np.int64)
         selected = np.flatnonzero(keep)
@@ -375,27 +362,21 @@ class ShardStream(IterableDataset[Batch]):
     def _batch(self, rows: npt.NDArray[np.int64], samples: list[_Prepared]) -> Batch:
         width = self.num_views
         keys = np.stack([s.keys for s in samples])
-        states = np.array([s.view_state for s in samples], dtype=np.uint64)
-        labels = np.array([s.label for s in samples], dtype=np.uint64)
-        batch: Batch = {
-            "points": torch.from_numpy(key_centres(keys, self.voxel_size, self.grid_offset)),
-            "view_state": torch.from_numpy(mask_bits(states, width).astype(np.float32)),
-            "label": torch.from_numpy(mask_bits(labels, width).astype(np.float32)),
-            "index": torch.from_numpy(rows.astype(np.int64, copy=True)),
-        }
+        extra: dict[str, npt.NDArray[Any]] = {}
         if self._support is not None:
-            batch["marginals"] = torch.from_numpy(np.stack([s.marginals for s in samples if s.marginals is not None]))
-            batch["support"] = torch.from_numpy(mask_bits(self._support[rows], width).astype(np.float32))
+            extra["marginals"] = np.stack([s.marginals for s in samples if s.marginals is not None])
+            extra["support"] = bit_rows(self._support[rows], width)
         if self.covers:
             listed = [s.covers if s.covers is not None else np.zeros(0, np.uint64) for s in samples]
-            most = max(c.size for c in listed)
-            padded = np.zeros((len(samples), most, width), dtype=np.float32)
-            valid = np.zeros((len(samples), most), dtype=bool)
-            for slot, found in enumerate(listed):
-                padded[slot, : found.size] = mask_bits(found, width)
-                valid[slot, : found.size] = True
-            batch["covers"], batch["cover_mask"] = torch.from_numpy(padded), torch.from_numpy(valid)
-        return batch
+            extra["covers"], extra["cover_mask"] = padded_covers(listed, width)
+        batch: SampleBatch[npt.NDArray[Any]] = SampleBatch(
+            points=key_centres(keys, self.voxel_size, self.grid_offset),
+            view_state=bit_rows(np.array([s.view_state for s in samples], dtype=np.uint64), width),
+            label=bit_rows(np.array([s.label for s in samples], dtype=np.uint64), width),
+            index=rows.astype(np.int64, copy=True),
+            **extra,
+        )
+        return batch.tensors()
 
 
 class _ReadAhead:

@@ -11,35 +11,44 @@ without them). A damaged dataset is a
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, Literal
 
-import numpy as np
 import torch
+from torch.utils.data import DataLoader, Sampler
 from torch.utils.data import Dataset as TorchDataset
-from torch.utils.data import Sampler
 
 from storage.reader import Dataset, open_dataset
-from storage.samples import mask_bits, resample_keys
+from storage.samples import SampleBatch, Source, bit_rows, check_source, resample_keys
+
+Item = dict[str, torch.Tensor]
+"""One sample: the fields of a `SampleBatch` without the batch axis (what a DataLoader's default
+collation stacks into a dict of the same names)."""
 
 
-class OSVPDataset(TorchDataset[dict[str, torch.Tensor]]):
+def collate_samples(items: Sequence[Mapping[str, torch.Tensor]]) -> SampleBatch[torch.Tensor]:
+    """The `SampleBatch` of ``items`` (each field stacked): `OSVPDataset.loader`'s collation."""
+    if not items:
+        raise ValueError("no samples to collate")
+    return SampleBatch(**{name: torch.stack([item[name] for item in items]) for name in items[0]})
+
+
+class OSVPDataset(TorchDataset[Item]):
     """Samples as tensors: ``points`` (num_points, 3) float32, ``view_state`` and ``label`` (n,)
-    float32 (0/1), plus ``index``."""
+    float32 (0/1), plus ``index``; `loader` batches them as `storage.samples.SampleBatch`."""
 
     def __init__(
         self,
         url: str,
         num_points: int = 2048,
-        source: Literal["points", "observed"] = "points",
+        source: Source = "points",
         split: Literal["train", "val"] | None = None,
         val_fraction: float = 0.2,
         seed: int = 0,
         split_seed: int = 0,
         storage_options: dict[str, Any] | None = None,
     ) -> None:
-        if source not in ("points", "observed"):
-            raise ValueError(f"source = {source!r}: use 'points' (refined) or 'observed'")
+        check_source(source)
         if num_points < 1:
             raise ValueError(f"num_points = {num_points} must be >= 1")
         dataset = open_dataset(url, storage_options)
@@ -59,17 +68,24 @@ class OSVPDataset(TorchDataset[dict[str, torch.Tensor]]):
     def __len__(self) -> int:
         return len(self.dataset)
 
-    def __getitem__(self, index: int) -> dict[str, torch.Tensor]:
+    def __getitem__(self, index: int) -> Item:
         index = range(len(self))[index]  # negative indices as for any sequence
         keys = resample_keys(self.dataset.keys(index, self.source), self.num_points, self.seed, self.epoch, index)
         view_state, label = self.dataset.masks(index)
         width = self.dataset.num_views
         return {
             "points": torch.from_numpy(self.dataset.centres(keys)),
-            "view_state": torch.from_numpy(mask_bits(view_state, width).astype(np.float32)),
-            "label": torch.from_numpy(mask_bits(label, width).astype(np.float32)),
+            "view_state": torch.from_numpy(bit_rows(view_state, width)),
+            "label": torch.from_numpy(bit_rows(label, width)),
             "index": torch.tensor(index),
         }
+
+    def loader(self, batch_size: int = 32, shuffle_seed: int | None = None, **options: Any) -> DataLoader[Item]:
+        """A DataLoader of `SampleBatch` batches: in index order, or with ``shuffle_seed`` in a
+        `ShardShuffleSampler`'s order (call its ``set_epoch`` with this dataset's); ``options`` go to
+        the DataLoader."""
+        sampler = ShardShuffleSampler(self, shuffle_seed) if shuffle_seed is not None else None
+        return DataLoader(self, batch_size=batch_size, sampler=sampler, collate_fn=collate_samples, **options)
 
 
 class ShardShuffleSampler(Sampler[int]):

@@ -116,7 +116,7 @@ def test_support_target_excuses_the_other_covers_views_by_hand() -> None:
 def test_target_loss_dispatches_and_names_what_is_missing() -> None:
     logits = probabilities_to_logits([[0.8, 0.4, 0.7]])
     label = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)
-    batch = SimpleNamespace(labels=label, marginals=None, support=None, covers=None, cover_mask=None)
+    batch = SimpleNamespace(label=label, marginals=None, support=None, covers=None, cover_mask=None)
     assert float(target_loss("label", logits, batch, 1.25)) == pytest.approx(float(sc_loss(logits, label, 1.25)))
     for target, missing in (("marginal", "marginals"), ("mincover", "covers"), ("support", "support")):
         with pytest.raises(ValueError, match=f"target '{target}' needs the batch's {missing}"):

@@ -42,11 +42,11 @@ def test_streamed_batches_are_the_in_memory_batches(bank: SampleBank, dataset_ur
     assert len(streamed) == train_rows.size
     for epoch in (0, 3):
         streamed.stream.set_epoch(epoch)
-        order = [found["index"] for found in streamed.stream.loader()]
+        order = [found.index for found in streamed.stream.loader()]
         assert sorted(torch.cat(order).tolist()) == train_rows.tolist(), "every training sample once"
         for rows, batch in zip(order, streamed.epoch(epoch), strict=True):
             expected = bank.batch(rows.numpy(), POINTS, seed=5, epoch=epoch, with_covers=True)
-            for name in ("points", "view_state", "labels", "marginals", "support", "covers", "cover_mask"):
+            for name in ("points", "view_state", "label", "index", "marginals", "support", "covers", "cover_mask"):
                 assert torch.equal(getattr(batch, name), getattr(expected, name)), (epoch, name)
 
 

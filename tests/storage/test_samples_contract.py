@@ -20,10 +20,14 @@ from datagen.pipeline.keys import key_centres as pipeline_centres
 from storage import open_dataset
 from storage.memory import load_memory
 from storage.samples import (
+    SampleBatch,
     SplitError,
+    check_source,
     held_out_objects,
     key_centres,
     mask_bits,
+    padded_covers,
+    resample_cloud,
     resample_indices,
     resample_keys,
     split_by_object,
@@ -206,7 +210,12 @@ def test_osvp_dataset_memory_and_sample_bank_give_identical_tensors(small: Built
                 assert torch.equal(batch.points, torch.from_numpy(memory.batch(rows, 96, 5, epoch).points))
                 assert torch.equal(batch.points, torch.stack([reader[i]["points"] for i in rows]))
                 assert torch.equal(batch.view_state, torch.stack([reader[i]["view_state"] for i in rows]))
-                assert torch.equal(batch.labels, torch.stack([reader[i]["label"] for i in rows]))
+                assert torch.equal(batch.label, torch.stack([reader[i]["label"] for i in rows]))
+                # one batch type: the map-style loader's batch is the bank's, field for field
+                (loaded,) = list(reader.loader(batch_size=len(rows)))
+                assert isinstance(loaded, SampleBatch) and isinstance(batch, SampleBatch)
+                for name in ("points", "view_state", "label", "index"):
+                    assert torch.equal(getattr(loaded, name), getattr(batch, name)), name
 
 
 def test_a_side_loaded_alone_is_that_side_of_a_whole_load(small: Built) -> None:
@@ -306,3 +315,46 @@ def test_osvp_covers_from_memory_are_those_built_sample_by_sample() -> None:
         mine, theirs = getattr(packed_bank, name), getattr(built, name)
         assert mine.dtype == theirs.dtype and np.array_equal(mine, theirs), name
     assert np.array_equal(packed_bank.counts, built.counts) and np.array_equal(packed_bank.exact, built.exact)
+
+
+# -- one batch type ------------------------------------------------------------------------------------
+def test_a_sample_batch_as_tensors_shares_the_arrays_and_keeps_absent_fields_absent() -> None:
+    arrays = SampleBatch(
+        points=np.zeros((2, 4, 3), dtype=np.float32),
+        view_state=np.eye(2, 3, dtype=np.float32),
+        label=np.ones((2, 3), dtype=np.float32),
+        index=np.array([7, 3], dtype=np.int64),
+        support=np.zeros((2, 3), dtype=np.float32),
+    )
+    tensors = arrays.tensors()
+    assert len(tensors) == 2 and set(tensors.as_dict()) == {"points", "view_state", "label", "index", "support"}
+    assert tensors.covers is None and tensors.marginals is None and tensors.cover_mask is None
+    arrays.points[1, 2, 0] = 5.0  # the same memory, no copy
+    assert float(tensors.points[1, 2, 0]) == 5.0 and tensors.index.tolist() == [7, 3]
+    assert tensors.to("cpu").as_dict().keys() == tensors.as_dict().keys()
+
+
+def test_padded_covers_hold_each_listing_then_empty_rows() -> None:
+    listed = [np.array([0b011, 0b110], dtype=np.uint64), np.zeros(0, dtype=np.uint64), np.array([0b100], np.uint64)]
+    covers, valid = padded_covers(listed, 3)
+    assert covers.shape == (3, 2, 3) and covers.dtype == np.float32 and valid.dtype == np.bool_
+    assert valid.tolist() == [[True, True], [False, False], [True, False]]
+    assert covers[0].tolist() == [[1, 1, 0], [0, 1, 1]] and covers[2, 0].tolist() == [0, 0, 1]
+    assert not covers[1].any() and not covers[2, 1].any()
+    empty, none = padded_covers([np.zeros(0, dtype=np.uint64)], 4)
+    assert empty.shape == (1, 0, 4) and none.shape == (1, 0)
+
+
+def test_resample_cloud_draws_from_its_stream() -> None:
+    cloud = np.arange(30, dtype=np.float32).reshape(10, 3)
+    for wanted in (4, 10, 25):
+        rng = np.random.default_rng(np.random.SeedSequence([0, 10]))  # the draw, written out
+        expected = cloud[rng.choice(10, size=wanted, replace=wanted > 10, shuffle=False)]
+        assert np.array_equal(resample_cloud(cloud, wanted, (0, 10)), expected)
+    assert np.array_equal(resample_cloud(np.zeros((0, 3), np.float32), 5, (0, 0)), np.zeros((5, 3), np.float32))
+
+
+def test_every_reader_refuses_another_source_with_one_line() -> None:
+    assert check_source("observed") == "observed"
+    with pytest.raises(ValueError, match="use 'points' \\(refined\\) or 'observed'"):
+        check_source("refined")

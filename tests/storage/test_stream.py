@@ -25,7 +25,7 @@ from support.s3_servers import BUCKET, REGION, S3Server
 from schemas.shard import array_names
 from storage import ShardReader, StorageError, open_dataset
 from storage.codec import _decode_whole, whole_array
-from storage.samples import split_by_object
+from storage.samples import SampleBatch, split_by_object
 from storage.stream import ShardStream
 from storage.torch import OSVPDataset
 from storage.writer import shard_path
@@ -48,22 +48,22 @@ def stream(url: str | Path, **options: object) -> ShardStream:
     return ShardStream(str(url), **{**base, **options})  # type: ignore[arg-type]
 
 
-def batches(source: ShardStream, workers: int = 0) -> list[dict[str, torch.Tensor]]:
+def batches(source: ShardStream, workers: int = 0) -> list[SampleBatch[torch.Tensor]]:
     return list(source.loader(num_workers=workers, multiprocessing_context="fork" if workers else None))
 
 
-def by_index(found: Iterable[dict[str, torch.Tensor]]) -> dict[int, dict[str, torch.Tensor]]:
+def by_index(found: Iterable[SampleBatch[torch.Tensor]]) -> dict[int, dict[str, torch.Tensor]]:
     """Samples by dataset row; a row met twice fails."""
     out: dict[int, dict[str, torch.Tensor]] = {}
     for batch in found:
-        for slot, row in enumerate(batch["index"].tolist()):
+        for slot, row in enumerate(batch.index.tolist()):
             assert row not in out, f"row {row} yielded twice"
-            out[row] = {name: value[slot] for name, value in batch.items()}
+            out[row] = {name: value[slot] for name, value in batch.as_dict().items()}
     return out
 
 
-def order(found: Iterable[dict[str, torch.Tensor]]) -> list[int]:
-    return [row for batch in found for row in batch["index"].tolist()]
+def order(found: Iterable[SampleBatch[torch.Tensor]]) -> list[int]:
+    return [row for batch in found for row in batch.index.tolist()]
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -77,14 +77,14 @@ def test_one_epoch_is_every_sample_once_with_the_map_style_tensors(many: Path) -
     samples = by_index(found)
     dataset = open_dataset(str(many))
     assert sorted(samples) == list(range(len(dataset))) == list(range(source.num_samples))
-    assert all(b["points"].shape[0] == BATCH for b in found[:-1]) and 0 < found[-1]["points"].shape[0] <= BATCH
+    assert all(b.points.shape[0] == BATCH for b in found[:-1]) and 0 < found[-1].points.shape[0] <= BATCH
     first = found[0]
     n = dataset.num_views
-    assert first["points"].shape == (BATCH, NUM_POINTS, 3) and first["points"].dtype == torch.float32
+    assert first.points.shape == (BATCH, NUM_POINTS, 3) and first.points.dtype == torch.float32
     for name in ("view_state", "label", "marginals", "support"):
-        assert first[name].shape == (BATCH, n) and first[name].dtype == torch.float32, name
-    assert first["index"].dtype == torch.int64 and first["cover_mask"].dtype == torch.bool
-    assert first["covers"].shape[:2] == first["cover_mask"].shape and first["covers"].shape[2] == n
+        assert getattr(first, name).shape == (BATCH, n) and getattr(first, name).dtype == torch.float32, name
+    assert first.index.dtype == torch.int64 and first.cover_mask.dtype == torch.bool
+    assert first.covers.shape[:2] == first.cover_mask.shape and first.covers.shape[2] == n
     mapped = OSVPDataset(str(many), num_points=NUM_POINTS, seed=7)
     mapped.set_epoch(3)
     for row, sample in samples.items():
@@ -139,7 +139,7 @@ def test_every_sample_once_across_two_ranks_of_two_workers(many: Path) -> None:
     # drop_last: every rank (and worker) yields as many full batches as every other, none twice.
     even = [stream(many, epoch=2, rank=rank, world_size=2, num_workers=2, drop_last=True) for rank in (0, 1)]
     found = [batches(source, workers=2) for source in even]
-    assert len(found[0]) == len(found[1]) > 0 and all(b["index"].numel() == BATCH for p in found for b in p)
+    assert len(found[0]) == len(found[1]) > 0 and all(b.index.numel() == BATCH for p in found for b in p)
     kept = [set(by_index(part)) for part in found]
     assert not kept[0] & kept[1] and len(kept[0] | kept[1]) > 0.7 * even[0].num_samples
 
@@ -173,8 +173,9 @@ def test_a_restart_after_k_batches_yields_the_uninterrupted_tail(many: Path, wor
         tail = batches(restarted, workers)
         assert len(tail) == len(whole) - consumed
         for a, b in zip(tail, whole[consumed:], strict=True):
-            for name in a:
-                assert torch.equal(a[name], b[name]), (consumed, name)
+            assert a.as_dict().keys() == b.as_dict().keys()
+            for name, value in a.as_dict().items():
+                assert torch.equal(value, getattr(b, name)), (consumed, name)
         skipped = stream(many, **options, skip=consumed)  # the same as a constructor argument
         assert order(batches(skipped, workers)) == order(whole[consumed:])
     with pytest.raises(ValueError, match="other seed"):
@@ -292,5 +293,6 @@ def test_streaming_from_s3_equals_the_local_stream(s3_copy: tuple[str, dict[str,
     local = batches(stream(many, epoch=2, num_workers=2), workers=2)
     assert order(found) == order(local) and sorted(order(found)) == list(range(remote.num_samples))
     for a, b in zip(found, local, strict=True):
-        for name in a:
-            assert torch.equal(a[name], b[name]), name
+        assert a.as_dict().keys() == b.as_dict().keys()
+        for name, value in a.as_dict().items():
+            assert torch.equal(value, getattr(b, name)), name

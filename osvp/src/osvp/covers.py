@@ -18,7 +18,7 @@ import numpy.typing as npt
 from storage import LabelAmbiguity
 from storage.covers import cover_marginals, covers_universe, nearest_cover
 from storage.memory import PackedCovers
-from storage.samples import mask_bits
+from storage.samples import mask_bits, padded_covers
 
 MaskArray = npt.NDArray[np.uint64]
 FloatArray = npt.NDArray[np.float32]
@@ -150,12 +150,7 @@ class CoverBank:
 
     def padded(self, rows: npt.ArrayLike) -> tuple[FloatArray, BoolArray]:
         """The covers of ``rows`` as bit rows (B, C, n) padded to the batch's largest listing, and
-        (B, C) True where a cover is real: what `osvp.loss.mincover_loss` takes."""
+        (B, C) True where a cover is real (`storage.samples.padded_covers`): what
+        `osvp.loss.mincover_loss` takes."""
         index = np.asarray(rows, dtype=np.int64).reshape(-1)
-        sizes = self.cover_offsets[index + 1] - self.cover_offsets[index]
-        width = int(sizes.max()) if index.size else 0
-        bits = np.zeros((index.size, width, self.num_views), dtype=np.float32)
-        valid = np.arange(width)[None, :] < sizes[:, None]
-        for slot, i in enumerate(index.tolist()):
-            bits[slot, : sizes[slot]] = masks_to_bits(self.covers_of(i), self.num_views)
-        return bits, valid
+        return padded_covers([self.covers_of(i) for i in index.tolist()], self.num_views)

@@ -17,7 +17,7 @@ validation rows never depend on them, so every point of a curve is judged on the
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -28,7 +28,7 @@ import storage
 from osvp.covers import CoverBank
 from schemas.errors import DatagenError
 from storage.memory import MemoryDataset, load_memory
-from storage.samples import SplitError, split_by_object, split_by_sample
+from storage.samples import SampleBatch, SplitError, split_by_object, split_by_sample
 
 Split = Literal["samples", "objects"]
 
@@ -41,22 +41,8 @@ class DataError(DatagenError):
     """A dataset cannot be used for training as asked (empty, too few samples or objects to split)."""
 
 
-@dataclass(frozen=True)
-class Batch:
-    points: torch.Tensor
-    """(B, N, 3) float32 key centres, metres."""
-    view_state: torch.Tensor
-    """(B, n) float32 0/1."""
-    labels: torch.Tensor
-    """(B, n) float32 0/1."""
-    marginals: torch.Tensor | None = None
-    """(B, n) float32: fraction of the listed minimum covers holding each view (version 2)."""
-    support: torch.Tensor | None = None
-    """(B, n) float32 0/1: views in any minimum cover (version 2)."""
-    covers: torch.Tensor | None = None
-    """(B, C, n) float32 0/1: the listed minimum covers, padded (only when asked for)."""
-    cover_mask: torch.Tensor | None = None
-    """(B, C) bool: True where ``covers`` holds a real cover."""
+Batch = SampleBatch[torch.Tensor]
+"""A training batch: the sample contract's one batch type (`storage.samples.SampleBatch`), as tensors."""
 
 
 @dataclass(frozen=True)
@@ -155,18 +141,18 @@ class SampleBank:
         """Samples ``rows``, each resampled to ``num_points`` from stream (seed, epoch, row); with
         marginals and support when the dataset has covers, and the padded covers if asked for."""
         arrays = self.samples.batch(rows, num_points, seed, epoch)
-        index = np.asarray(rows, dtype=np.int64)
         found = self.covers
-        covers, valid = found.padded(index) if found is not None and with_covers else (None, None)
-        return Batch(
-            points=torch.from_numpy(arrays.points),
-            view_state=torch.from_numpy(arrays.view_state),
-            labels=torch.from_numpy(arrays.label),
-            marginals=torch.from_numpy(found.marginals[index]) if found is not None else None,
-            support=torch.from_numpy(found.support[index]) if found is not None else None,
-            covers=torch.from_numpy(covers) if covers is not None else None,
-            cover_mask=torch.from_numpy(valid) if valid is not None else None,
-        )
+        if found is not None:
+            index = np.asarray(rows, dtype=np.int64).reshape(-1)
+            covers, valid = found.padded(index) if with_covers else (None, None)
+            arrays = replace(
+                arrays,
+                marginals=found.marginals[index],
+                support=found.support[index],
+                covers=covers,
+                cover_mask=valid,
+            )
+        return arrays.tensors()
 
 
 def require_covers(bank: SampleBank, what: str) -> CoverBank:

@@ -101,7 +101,7 @@ class TargetBatch(Protocol):
     """What a target reads from a batch (`osvp.data.Batch`)."""
 
     @property
-    def labels(self) -> torch.Tensor: ...
+    def label(self) -> torch.Tensor: ...
     @property
     def marginals(self) -> torch.Tensor | None: ...
     @property
@@ -147,7 +147,7 @@ def _need(target: str, value: torch.Tensor | None, what: str, logits: torch.Tens
 
 @register_target("label", needs_ties=False)
 def _label(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
-    return sc_loss(logits, batch.labels.to(logits.device), lambda_)
+    return sc_loss(logits, batch.label.to(logits.device), lambda_)
 
 
 @register_target("marginal")
@@ -163,7 +163,7 @@ def _mincover(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch
 
 @register_target("support")
 def _support(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
-    labels = batch.labels.to(logits.device)
+    labels = batch.label.to(logits.device)
     return support_loss(logits, labels, _need("support", batch.support, "support", logits), lambda_)
 
 

@@ -1,8 +1,9 @@
 """A trained checkpoint as a view scorer: what ``datagen evaluate --planner osvp:FILE`` loads.
 
 The scorer takes what a dataset sample holds (the cloud's key centres in metres and the view state)
-and returns one probability per view. The cloud is resampled to the checkpoint's point count from a
-fixed stream, so a scene always gets the same answer. It is a `schemas.planning.DecodingScorer`:
+and returns one probability per view. The cloud is resampled to the checkpoint's point count by the
+sample contract (`storage.samples.resample_cloud`) from a fixed stream, so a scene always gets the
+same answer. It is a `schemas.planning.DecodingScorer`:
 `CheckpointScorer.select_views` turns the probabilities into views with the checkpoint's default
 decoding (``osvp:FILE``) or a named one (``osvp+size:FILE``, ``osvp+threshold=0.3:FILE``).
 `load_scorer` is the `schemas.planning.ScorerFactory` osvp registers as entry point ``osvp`` of the
@@ -20,6 +21,7 @@ import torch
 from osvp.checkpoint import Checkpoint, load_checkpoint
 from osvp.decoding import DECODINGS, parse_decoding, select_views
 from schemas.planning import DecodingScorer, ScorerFactory
+from storage.samples import resample_cloud
 
 PLANNING_SEED = 0
 
@@ -46,12 +48,8 @@ class CheckpointScorer(DecodingScorer):
         state = np.asarray(view_state, dtype=np.float32).reshape(-1)
         self.checkpoint.require(state.size, what="the planner's view space")
         cloud = np.asarray(points, dtype=np.float32).reshape(-1, 3)
-        count, wanted = cloud.shape[0], self.checkpoint.num_points
-        if count == 0:
-            cloud = np.zeros((wanted, 3), dtype=np.float32)
-        else:
-            rng = np.random.default_rng(np.random.SeedSequence([PLANNING_SEED, count]))
-            cloud = cloud[rng.choice(count, size=wanted, replace=count < wanted, shuffle=False)]
+        # the sample contract's resampling, from a stream of the scene's own (its point count)
+        cloud = resample_cloud(cloud, self.checkpoint.num_points, (PLANNING_SEED, cloud.shape[0]))
         with torch.no_grad():
             logits = self.network(
                 torch.from_numpy(cloud)[None].to(self.device), torch.from_numpy(state)[None].to(self.device)

@@ -145,13 +145,4 @@ class StreamedRows:
             pin_memory=self.pin_memory,
             generator=torch.Generator().manual_seed(epoch),
         )
-        for found in loader:
-            yield Batch(
-                points=found["points"],
-                view_state=found["view_state"],
-                labels=found["label"],
-                marginals=found.get("marginals"),
-                support=found.get("support"),
-                covers=found.get("covers"),
-                cover_mask=found.get("cover_mask"),
-            )
+        yield from loader

@@ -394,7 +394,7 @@ def _train_epoch(
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
-            size = int(batch.labels.shape[0])
+            size = int(batch.label.shape[0])
             total += float(loss.detach()) * size
             seen += size
             if on_batch:
