@@ -63,8 +63,8 @@ class Dataset:
     """Random access to samples (``ds[i]``), filters, object-level splits, shuffled iteration."""
 
     _integrity_checks = True
-    """Verify each shard whole before its first read (`ShardReader.verify`). Only
-    benchmarks/reader.py turns it off on an instance, to measure what the check costs."""
+    """Verify each shard whole before its first read (`ShardReader.verify`). Off only to measure what
+    the check costs, as the former benchmarks/reader.py did on an instance."""
 
     def __init__(
         self, location: Location, info: DatasetInfo, index: pa.Table, verified: set[str] | None = None

@@ -1,5 +1,5 @@
-"""benchmarks/label_margin.py's tables on a made-up `datagen evaluate --json` report (the evaluation itself is
-measured by hand: results/label-margin.md)."""
+"""benchmarks/planners/label_margin.py's tables on a made-up `datagen evaluate --json` report (the
+evaluation itself is measured by hand: benchmarks/planners/results/label-margin.md)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from support.benchmarks import load_benchmark
 
 @pytest.fixture(scope="module")
 def label_margin() -> ModuleType:
-    return load_benchmark("label_margin")
+    return load_benchmark("planners.label_margin")
 
 
 def row(planner: str, coverage: float, lift_fixed: float | None, obj: str | None = None) -> dict[str, Any]:

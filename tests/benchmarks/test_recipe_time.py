@@ -1,5 +1,6 @@
-"""benchmarks/recipe_time.py's pieces: the 40-object file it times and the report it prints (the
-timed jobs themselves are whole `datagen submit` runs, measured by hand: results/recipe-time.md)."""
+"""benchmarks/generation/recipe_time.py's pieces: the 40-object file it times and the report it prints
+(the timed jobs themselves are whole `datagen submit` runs, measured by hand:
+benchmarks/generation/results/recipe-time.md)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from support.benchmarks import load_benchmark
 
 @pytest.fixture(scope="module")
 def recipe_time() -> ModuleType:
-    return load_benchmark("recipe_time")
+    return load_benchmark("generation.recipe_time")
 
 
 def test_the_first_recipes_objects(recipe_time: ModuleType, tmp_path: Path) -> None:

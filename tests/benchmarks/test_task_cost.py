@@ -1,4 +1,4 @@
-"""benchmarks/task_cost.py's pieces on tiny inputs: every floor helper computes (no timed assertions),
+"""benchmarks/generation/task_cost.py's pieces on tiny inputs: every floor helper computes (no timed assertions),
 FLOPs are counted exactly, the decoder's FLOP model is linear in the queries, the hooks restore what
 they patch, and one whole task (refiner none) is measured with a floor for each step."""
 
@@ -22,7 +22,7 @@ from schemas.index import TASK_STEPS
 
 @pytest.fixture(scope="module")
 def task_cost() -> ModuleType:
-    return load_benchmark("task_cost")
+    return load_benchmark("generation.task_cost")
 
 
 def test_cpu_and_matmul_rate(task_cost: ModuleType) -> None:

@@ -1,5 +1,5 @@
-"""benchmarks/version_labels.py's comparison on made-up evaluate reports (the evaluations themselves
-run `datagen evaluate`, measured by hand: results/refine-speed.md)."""
+"""benchmarks/labels/version_labels.py's comparison on made-up evaluate reports (the evaluations themselves
+run `datagen evaluate`, measured by hand: benchmarks/labels/results/version-labels.md)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from support.benchmarks import load_benchmark
 
 @pytest.fixture(scope="module")
 def version_labels() -> ModuleType:
-    return load_benchmark("version_labels")
+    return load_benchmark("labels.version_labels")
 
 
 def run(name: str, initial: int, visited: list[int], observed: int, planner: str = "oracle") -> dict[str, Any]:

@@ -5,7 +5,7 @@ views. The independent reference (`open3d_reference`) rebuilds the same rays fro
 and the view positions and casts them with Open3D's RaycastingScene (float32), so per-view key sets
 must agree up to float32 rounding at voxel faces and silhouettes.
 
-The table of measured numbers: ``python benchmarks/imaging_agreement.py``.
+The table of measured numbers: ``python -m benchmarks.generation.imaging_agreement``.
 """
 
 from __future__ import annotations

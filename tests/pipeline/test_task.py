@@ -294,11 +294,11 @@ def test_observation_combine() -> None:
 
 
 # ---------------------------------------------------------------------------------------------------------
-# Real meshes: the number of cases per task (benchmarks/cases.py prints all of them)
+# Real meshes: the number of cases per task (benchmarks/generation/cases.py prints all of them)
 # ---------------------------------------------------------------------------------------------------------
 
 SHARED_CHOICE = ("fandisk", "rocker-arm", "teapot")
-"""Three of the quicker real meshes (the whole table: ``python benchmarks/cases.py``)."""
+"""Three of the quicker real meshes (the whole table: ``python -m benchmarks.generation.cases``)."""
 
 
 @requires_shared_meshes

@@ -3,7 +3,7 @@
 Every mesh is prepared at size 0.15 m, rotation 0, and imaged in both modes from the 32 built-in
 views; the reference (`open3d_reference`) rebuilds the same rays from the intrinsics and the view
 positions and casts them with Open3D's RaycastingScene (float32). Shared by
-``tests/pipeline/test_imaging_shared.py`` (the checks) and ``benchmarks/imaging_agreement.py`` (the
+``tests/pipeline/test_imaging_shared.py`` (the checks) and ``benchmarks/generation/imaging_agreement.py`` (the
 table of measured numbers).
 """
 

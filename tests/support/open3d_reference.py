@@ -1,6 +1,6 @@
 """An independent reference for imaging (docs/pipeline.md section 3), built on Open3D's RaycastingScene.
 
-Used by the tests (to cross-check `datagen.pipeline.imaging` view by view) and by ``benchmarks/imaging.py``
+Used by the tests (to cross-check `datagen.pipeline.imaging` view by view) and by ``benchmarks/generation/imaging.py``
 (to time Open3D on exactly the rays our imaging casts). Nothing here calls the code under test except
 `datagen.pipeline.keys.pack_keys`, the bijection from integer key triples to the packed int64 scalars that
 both sides' key sets are compared in.

@@ -18,7 +18,7 @@ network through its inference path (`inputs.predict_probs` with ``fast=True``: c
 sub-chunks, in-place updates, and in the encoder a vectorised neighbour norm, amax, batch_norm for
 one sample's instance norm: see `PocoModel.encode`). Every one of these gives bit-identical
 probabilities, so the refiner's outputs, and the dataset's identity, are those of the original
-execution, which ``fast=False`` still runs (benchmarks/refine_speed.py,
+execution, which ``fast=False`` still runs (benchmarks/generation/refine_speed.py,
 tests/pipeline/test_refine_speed.py).
 
 Versions (``GenerationConfig.poco_version``, part of the config hash): 1 is the computation above with

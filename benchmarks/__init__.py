@@ -1,0 +1,1 @@
+"""Benchmarks of datagen, by question: generation, labels, reading, planners (see README.md)."""

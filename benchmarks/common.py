@@ -1,0 +1,46 @@
+"""What the benchmarks share: one thread per BLAS / OpenMP pool, torch's thread count, and the repository's paths.
+
+A benchmark that times single-threaded work calls `limit_threads` before anything imports numpy:
+OpenBLAS, OpenMP and MKL read their thread counts from the environment once, when the library
+loads, so a later change has no effect on this process (its subprocesses still inherit it). This
+module imports nothing heavy, so it can run first::
+
+    from benchmarks.common import limit_threads
+
+    limit_threads()
+
+    import numpy as np  # noqa: E402
+
+Scripts run as modules from the repository root (``python -m benchmarks.<group>.<script>``), so
+``benchmarks`` and the installed packages import by name without any path of their own.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+TESTS = REPO_ROOT / "tests"
+SHARED_MESHES = REPO_ROOT.parent / "shared" / "meshes"
+"""The real meshes beside the repository (absent on most machines: the scripts say so)."""
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def limit_threads(torch_threads: int | None = None) -> None:
+    """One thread for every BLAS and OpenMP pool (set in the environment, so call it before numpy is
+    imported) and, when given, torch's intra-op thread count (this imports torch)."""
+    for variable in THREAD_VARIABLES:
+        os.environ[variable] = "1"
+    if torch_threads is not None:
+        import torch
+
+        torch.set_num_threads(torch_threads)
+
+
+def use_test_support() -> None:
+    """Make the tests' helpers (``tests/support``: the Open3D reference, the S3 servers) importable as
+    ``support``; the benchmarks reuse them rather than keep a second copy."""
+    if str(TESTS) not in sys.path:
+        sys.path.insert(0, str(TESTS))

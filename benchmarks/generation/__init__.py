@@ -1,0 +1,1 @@
+"""How fast a dataset is made: imaging, cases, refinement, a task's steps, whole jobs (see README.md)."""
