@@ -9,6 +9,7 @@
 #   submit     `datagen submit --address ray://127.0.0.1:$RAY_CLIENT_PORT --out s3://...` from the
 #              host; `shards validate` and `shards ls` from the host
 #   worker     kill -9 of a worker container while the job runs
+#   driver     kill -9 of the host's driver (`datagen submit`) mid-job, then `datagen resume` at once
 #   head       a job queued for the head's `datagen serve`; the head is stopped and started while it
 #              runs (the ledger is on the head's volume); the restarted serve finishes the job
 #   s3         the S3 server restarted while the job runs
@@ -137,6 +138,23 @@ check_dataset worker "s3://$BUCKET/$RUN/worker" "$t0" \
 # the killed worker comes back (restart policy) and rejoins
 step "worker back" cluster_wait_ready "$WORKERS" 300 >/dev/null
 
+# --- SIGKILL of the host's driver mid-job, then `datagen resume` at once -------------------------
+# The Ray client server still holds the dead driver's session for a while; resume must wait it out
+# by itself (saying so once) and finish the job, not fail with the server's refusal.
+t0=$(now)
+host_submit driver
+counts=$(wait_done_at_least host "$JOB" 1 300)
+td=$(now)
+kill -9 "$SUBMIT_PID"
+wait "$SUBMIT_PID" 2>/dev/null || true
+tr=$(now)
+datagen resume "$JOB" --address "$ADDRESS" --home "$HOST_HOME" >"$WORK/driver-resume.log" 2>&1 \
+    || { FAILED=1; tail -5 "$WORK/driver-resume.log"; }
+resumed_s=$(since "$tr")
+waited=$(grep -c "refused a new session" "$WORK/driver-resume.log" || true)
+check_dataset driver "s3://$BUCKET/$RUN/driver" "$t0" \
+    "driver killed at ${counts%% *}/6 done; resume started $(elapsed "$td" "$tr") s after the kill, ended $resumed_s s later; notices of a held session: $waited; job in the host's ledger: $(job_counts host "$JOB")"
+
 # --- stop and start the head while its serve runs a queued job ----------------------------------
 t0=$(now)
 engine cp "$OBJECTS" "$(cname head):/tmp/check-objects.txt"
@@ -201,7 +219,7 @@ bash scripts/cluster-up.sh >/dev/null 2>&1
 up_s=$(since "$tu")
 jobs_after=$(head_jobs)
 [ "$jobs_before" = "$jobs_after" ] && [ "${jobs_after%% *}" -gt 0 ] || FAILED=1
-for name in submit worker head s3; do
+for name in submit worker driver head s3; do
     check_dataset "down-up:$name" "s3://$BUCKET/$RUN/$name" "$t0" \
         "down $down_s s, up (healthy, workers joined) $up_s s; head's ledger: jobs, done = $jobs_after (before: $jobs_before)"
 done

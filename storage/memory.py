@@ -18,7 +18,7 @@ Depends on numpy and `storage` only: no torch here (osvp wraps the arrays as ten
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -34,7 +34,16 @@ from schemas.shard import (
     offsets_array,
 )
 from storage.reader import Dataset, open_dataset
-from storage.samples import SampleBatch, Source, bit_rows, check_source, key_centres, resample_indices
+from storage.samples import (
+    SampleBatch,
+    ShardRows,
+    Source,
+    bit_rows,
+    check_source,
+    fields_for,
+    key_centres,
+    resample_indices,
+)
 
 Progress = Callable[[int, int], None]
 """Called with (samples read, samples to read) after each shard."""
@@ -95,6 +104,8 @@ class MemoryDataset:
     object_ids: tuple[str, ...]
     covers: PackedCovers | None = None
     """None for a version-1 dataset, or when the load was asked to leave them out."""
+    fields: dict[str, npt.NDArray[Any]] = field(default_factory=dict)
+    """(S, ...) values of every registered `storage.samples.SampleField` the dataset has, by name."""
 
     def __len__(self) -> int:
         return int(self.rows.size)
@@ -125,6 +136,7 @@ class MemoryDataset:
             view_state=self.view_state[index],
             label=self.labels[index],
             index=self.rows[index],
+            **{name: values[index] for name, values in self.fields.items()},
         )
 
 
@@ -162,6 +174,8 @@ def load_memory(
     pieces: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.int16]]] = []
     cover_pieces: list[tuple[npt.NDArray[np.int64], MaskArray, npt.NDArray[np.int64]]] = []
     universe_pieces: list[tuple[npt.NDArray[np.int64], MaskArray, npt.NDArray[np.int64]]] = []
+    sample_fields = fields_for(found.info.schema_version)
+    field_pieces: dict[str, list[tuple[npt.NDArray[np.int64], npt.NDArray[Any]]]] = {f.name: [] for f in sample_fields}
     done = 0
     for relative in sorted(groups):  # the reader's order: shards by path, samples in index order
         positions = np.asarray(groups[relative], dtype=np.int64)
@@ -171,6 +185,9 @@ def load_memory(
         counts[positions] = sizes
         pieces.append((positions, keys))
         masks[positions] = shard.array(MASKS)[local][:, [VIEW_STATE_COLUMN, LABEL_COLUMN]]
+        these = ShardRows(source, local, shard.array)
+        for sample_field in sample_fields:
+            field_pieces[sample_field.name].append((positions, sample_field.read(these)))
         if ambiguous:
             listed, listed_sizes = _ragged_take(shard.array(COVERS), shard.array(offsets_array(COVERS)), local)
             cover_pieces.append((positions, listed, listed_sizes))
@@ -199,7 +216,8 @@ def load_memory(
             exact=columns["min_covers_exact"][chosen].astype(bool),
         )
     keys = _place(pieces, offsets, (3,), np.dtype(np.int16))
-    return _held(found, source, chosen, keys, offsets, state_masks, label_masks, packed_covers)
+    held = _held(found, source, chosen, keys, offsets, state_masks, label_masks, packed_covers)
+    return replace(held, fields={name: _in_order(found_pieces, total) for name, found_pieces in field_pieces.items()})
 
 
 def load_index_facts(dataset: Dataset, source: Source = "points") -> MemoryDataset:
@@ -247,6 +265,17 @@ def _held(
         object_ids=tuple(object_column[row] for row in chosen.tolist()),
         covers=covers,
     )
+
+
+def _in_order(pieces: list[tuple[npt.NDArray[np.int64], npt.NDArray[Any]]], total: int) -> npt.NDArray[Any]:
+    """One (total, ...) array of the pieces (positions, their values) in position order."""
+    if not pieces:
+        return np.zeros(0)
+    first = pieces[0][1]
+    placed = np.zeros((total, *first.shape[1:]), dtype=first.dtype)
+    for positions, values in pieces:
+        placed[positions] = values
+    return placed
 
 
 def _ragged_index(starts: npt.NDArray[np.int64], sizes: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:

@@ -28,6 +28,7 @@ import numpy as np
 import numpy.typing as npt
 
 from schemas.errors import DatagenError
+from schemas.shard import offsets_array
 
 if TYPE_CHECKING:
     import torch
@@ -78,6 +79,9 @@ class SampleBatch(Generic[ArrayT]):
     """(B, C, n) float32 0/1: the listed minimum covers, padded to the batch's longest listing."""
     cover_mask: ArrayT | None = None
     """(B, C) bool: True where ``covers`` holds a real cover."""
+    cloud_size: ArrayT | None = None
+    """(B,) int64: points in the stored cloud ``points`` was drawn from (fewer than N: drawn with
+    repeats). A `SampleField`: the in-memory and streaming readers fill it."""
 
     def __len__(self) -> int:
         return len(self.index)  # type: ignore[arg-type]
@@ -104,6 +108,64 @@ class SampleBatch(Generic[ArrayT]):
     def pin_memory(self: SampleBatch[torch.Tensor]) -> SampleBatch[torch.Tensor]:
         """Every tensor in pinned memory (what a DataLoader with ``pin_memory=True`` calls)."""
         return self.map(lambda tensor: tensor.pin_memory())
+
+
+@dataclass(frozen=True)
+class ShardRows:
+    """Some samples of one shard, as a reader has them: what a `SampleField` reads from."""
+
+    source: Source
+    local: npt.NDArray[np.int64]
+    """The samples' rows within the shard."""
+    array: Callable[[str], npt.NDArray[Any]]
+    """The shard's array of that name, whole (`schemas.shard`'s names)."""
+
+
+@dataclass(frozen=True)
+class SampleField:
+    """A per-sample `SampleBatch` field read from a shard's arrays, the same way by every batch reader.
+
+    ``read`` gives the values of ``rows.local`` stacked, (S, ...) with a fixed trailing shape, for a
+    dataset of schema version ``since`` or later. A new field of a sample is its `SampleBatch`
+    attribute and one `register_field` here: `storage.memory` and `storage.stream` read and batch
+    every registered field without naming it.
+    """
+
+    name: str
+    since: int
+    read: Callable[[ShardRows], npt.NDArray[Any]]
+
+
+SAMPLE_FIELDS: dict[str, SampleField] = {}
+"""Every registered per-sample field, by `SampleBatch` attribute."""
+
+
+def register_field(
+    name: str, since: int = 1
+) -> Callable[[Callable[[ShardRows], npt.NDArray[Any]]], Callable[[ShardRows], npt.NDArray[Any]]]:
+    """Register the decorated reader as field ``name`` (a `SampleBatch` attribute) of datasets of
+    schema version ``since`` or later."""
+    if name not in {field.name for field in fields(SampleBatch)}:
+        raise ValueError(f"{name!r} is no SampleBatch field; declare it on SampleBatch first")
+
+    def register(read: Callable[[ShardRows], npt.NDArray[Any]]) -> Callable[[ShardRows], npt.NDArray[Any]]:
+        if name in SAMPLE_FIELDS:
+            raise ValueError(f"sample field {name!r} is registered twice")
+        SAMPLE_FIELDS[name] = SampleField(name, since, read)
+        return read
+
+    return register
+
+
+def fields_for(schema_version: int) -> list[SampleField]:
+    """The registered fields a dataset of ``schema_version`` has, sorted by name."""
+    return [SAMPLE_FIELDS[name] for name in sorted(SAMPLE_FIELDS) if SAMPLE_FIELDS[name].since <= schema_version]
+
+
+@register_field("cloud_size")
+def _cloud_size(rows: ShardRows) -> npt.NDArray[np.int64]:
+    offsets = np.asarray(rows.array(offsets_array(rows.source)), dtype=np.int64)
+    return offsets[rows.local + 1] - offsets[rows.local]
 
 
 def bit_rows(masks: int | npt.ArrayLike, width: int) -> npt.NDArray[np.float32]:

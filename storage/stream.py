@@ -63,7 +63,18 @@ from storage.codec import whole_array
 from storage.covers import cover_marginals
 from storage.location import Location, open_location
 from storage.reader import Dataset, open_dataset
-from storage.samples import SampleBatch, Source, bit_rows, check_source, key_centres, padded_covers, resample_keys
+from storage.samples import (
+    SAMPLE_FIELDS,
+    SampleBatch,
+    ShardRows,
+    Source,
+    bit_rows,
+    check_source,
+    fields_for,
+    key_centres,
+    padded_covers,
+    resample_keys,
+)
 from storage.shards import ShardReader
 
 WORKER_ZARR_CONFIG = {"codec_pipeline.batch_size": 64, "threading.max_workers": 1}
@@ -87,6 +98,8 @@ class _Prepared:
     label: int
     covers: npt.NDArray[np.uint64] | None
     marginals: npt.NDArray[np.float32] | None
+    fields: dict[str, npt.NDArray[Any]]
+    """Its value of every registered `storage.samples.SampleField` the dataset has."""
 
 
 @dataclass(frozen=True)
@@ -155,6 +168,8 @@ class ShardStream(IterableDataset[Batch]):
         self.voxel_size = float(dataset.info.config.voxel_size)
         self.grid_offset = np.asarray(dataset.info.config.grid_offset, dtype=np.float64)
         self.ambiguous = dataset.has_ambiguity
+        self.field_names = [field.name for field in fields_for(dataset.info.schema_version)]
+        """The registered `storage.samples.SampleField`s it reads (names: a worker looks them up)."""
         if covers and not self.ambiguous:
             raise ValueError(
                 f"{self.url}: covers=True needs a dataset with minimum covers (version 2); this one is version "
@@ -345,8 +360,18 @@ class ShardStream(IterableDataset[Batch]):
         masks = whole_array(reader, MASKS)
         if self.ambiguous:
             covers, cover_offsets = whole_array(reader, COVERS), whole_array(reader, offsets_array(COVERS))
+        rows = self._rows[shard][needed[self._rows[shard]]]
+        arrays: dict[str, npt.NDArray[Any]] = {}
+
+        def array(name: str) -> npt.NDArray[Any]:
+            if name not in arrays:
+                arrays[name] = whole_array(reader, name)
+            return arrays[name]
+
+        shard_rows = ShardRows(self.source, self._shard_rows[rows], array)
+        fields = {name: SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
         out: dict[int, _Prepared] = {}
-        for row in self._rows[shard][needed[self._rows[shard]]].tolist():
+        for slot, row in enumerate(rows.tolist()):
             local = int(self._shard_rows[row])
             cloud = keys[offsets[local] : offsets[local + 1]]
             listed = covers[cover_offsets[local] : cover_offsets[local + 1]] if self.ambiguous else None
@@ -356,6 +381,7 @@ class ShardStream(IterableDataset[Batch]):
                 label=int(masks[local, LABEL_COLUMN]),
                 covers=listed,
                 marginals=cover_marginals(listed, self.num_views).astype(np.float32) if listed is not None else None,
+                fields={name: values[slot] for name, values in fields.items()},
             )
         return out
 
@@ -369,6 +395,8 @@ class ShardStream(IterableDataset[Batch]):
         if self.covers:
             listed = [s.covers if s.covers is not None else np.zeros(0, np.uint64) for s in samples]
             extra["covers"], extra["cover_mask"] = padded_covers(listed, width)
+        for name in self.field_names:
+            extra[name] = np.stack([s.fields[name] for s in samples])
         batch: SampleBatch[npt.NDArray[Any]] = SampleBatch(
             points=key_centres(keys, self.voxel_size, self.grid_offset),
             view_state=bit_rows(np.array([s.view_state for s in samples], dtype=np.uint64), width),

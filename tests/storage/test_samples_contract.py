@@ -17,16 +17,21 @@ from support import storage as fx
 from support.torch_data import Built, cached_dataset
 
 from datagen.pipeline.keys import key_centres as pipeline_centres
+from schemas.shard import LABEL_COLUMN, MASKS
 from storage import open_dataset
 from storage.memory import load_memory
 from storage.samples import (
+    SAMPLE_FIELDS,
     SampleBatch,
+    SampleField,
+    ShardRows,
     SplitError,
     check_source,
     held_out_objects,
     key_centres,
     mask_bits,
     padded_covers,
+    register_field,
     resample_cloud,
     resample_indices,
     resample_keys,
@@ -358,3 +363,44 @@ def test_every_reader_refuses_another_source_with_one_line() -> None:
     assert check_source("observed") == "observed"
     with pytest.raises(ValueError, match="use 'points' \\(refined\\) or 'observed'"):
         check_source("refined")
+
+
+# -- per-sample fields: one registration, every batch reader ---------------------------------------------
+def test_cloud_size_is_each_samples_stored_cloud_in_every_batch_reader(covered: Path) -> None:
+    from storage.stream import ShardStream
+
+    dataset = open_dataset(str(covered))
+    for source in ("points", "observed"):
+        truth = [dataset.keys(row, source).shape[0] for row in range(len(dataset))]
+        rows = list(range(len(dataset)))[::-1]
+        held = load_memory(dataset, source).batch(rows, 16, 0, 0)
+        assert held.cloud_size is not None and held.cloud_size.tolist() == [truth[row] for row in rows]
+        streamed = ShardStream(dataset, num_points=16, batch_size=4, source=source, seed=0)
+        for batch in streamed.loader():
+            assert batch.cloud_size.tolist() == [truth[row] for row in batch.index.tolist()]
+    data = pytest.importorskip("osvp.data")
+    sizes = data.SampleBank.load(str(covered)).batch([1, 0], 16, 0, 0).cloud_size
+    assert sizes.tolist() == [dataset.keys(1).shape[0], dataset.keys(0).shape[0]]
+
+
+def test_a_fields_reader_is_the_only_place_that_names_it(covered: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Swapping the registered reader of a field changes what both batch readers give, unchanged."""
+    from storage.stream import ShardStream
+
+    def label_bits(rows: ShardRows) -> np.ndarray:  # a stand-in reader: each sample's label mask
+        return np.asarray(rows.array(MASKS), dtype=np.int64)[rows.local, LABEL_COLUMN]
+
+    monkeypatch.setitem(SAMPLE_FIELDS, "cloud_size", SampleField("cloud_size", 1, label_bits))
+    dataset = open_dataset(str(covered))
+    labels = dataset.index.column("label").to_numpy().astype(np.int64)
+    held = load_memory(dataset).batch(range(len(dataset)), 8, 0, 0)
+    assert held.cloud_size is not None and held.cloud_size.tolist() == labels.tolist()
+    for batch in ShardStream(dataset, num_points=8, batch_size=3, seed=1).loader():
+        assert batch.cloud_size.tolist() == labels[batch.index.numpy()].tolist()
+
+
+def test_register_field_refuses_an_undeclared_name_and_a_second_reader() -> None:
+    with pytest.raises(ValueError, match="no SampleBatch field"):
+        register_field("gains")
+    with pytest.raises(ValueError, match="registered twice"):
+        register_field("cloud_size")(lambda rows: rows.local)

@@ -106,9 +106,11 @@ def test_observed_clouds_and_a_version_1_dataset(tmp_path: Path) -> None:
     samples = by_index(batches(source))
     mapped = OSVPDataset(str(tmp_path / "v1"), num_points=NUM_POINTS, source="observed", seed=7)
     assert sorted(samples) == list(range(len(mapped)))
+    stored = open_dataset(str(tmp_path / "v1"))
     for row, sample in samples.items():
-        assert set(sample) == {"points", "view_state", "label", "index"}
+        assert set(sample) == {"points", "view_state", "label", "index", "cloud_size"}
         assert torch.equal(sample["points"], mapped[row]["points"])
+        assert int(sample["cloud_size"]) == stored.keys(row, "observed").shape[0]
     with pytest.raises(ValueError, match="version 2"):
         stream(tmp_path / "v1", covers=True)
 

@@ -20,7 +20,19 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-CASES = ("local", "submit", "worker", "head", "s3", "down-up:submit", "down-up:worker", "down-up:head", "down-up:s3")
+CASES = (
+    "local",
+    "submit",
+    "worker",
+    "driver",
+    "head",
+    "s3",
+    "down-up:submit",
+    "down-up:worker",
+    "down-up:driver",
+    "down-up:head",
+    "down-up:s3",
+)
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
