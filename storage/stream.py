@@ -59,22 +59,11 @@ import zarr
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from schemas.shard import COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
+from storage import samples
 from storage.codec import whole_array
 from storage.covers import cover_marginals
 from storage.location import Location, open_location
 from storage.reader import Dataset, open_dataset
-from storage.samples import (
-    SAMPLE_FIELDS,
-    SampleBatch,
-    ShardRows,
-    Source,
-    bit_rows,
-    check_source,
-    fields_for,
-    key_centres,
-    padded_covers,
-    resample_keys,
-)
 from storage.shards import ShardReader
 
 WORKER_ZARR_CONFIG = {"codec_pipeline.batch_size": 64, "threading.max_workers": 1}
@@ -86,7 +75,7 @@ STREAM_TAG = 0x57EA4
 """Tag of the stream's own random streams (shard order, shuffle buffer), apart from the resampling
 streams (seed, epoch, index)."""
 
-Batch = SampleBatch[torch.Tensor]
+Batch = samples.SampleBatch[torch.Tensor]
 
 
 @dataclass(frozen=True)
@@ -132,7 +121,7 @@ class ShardStream(IterableDataset[Batch]):
         *,
         num_points: int = 2048,
         batch_size: int = 32,
-        source: Source = "points",
+        source: samples.Source = "points",
         seed: int = 0,
         epoch: int = 0,
         rows: npt.ArrayLike | None = None,
@@ -147,7 +136,7 @@ class ShardStream(IterableDataset[Batch]):
         skip: int = 0,
         storage_options: dict[str, Any] | None = None,
     ) -> None:
-        check_source(source)
+        samples.check_source(source)
         for name, value, least in (
             ("num_points", num_points, 1),
             ("batch_size", batch_size, 1),
@@ -168,7 +157,7 @@ class ShardStream(IterableDataset[Batch]):
         self.voxel_size = float(dataset.info.config.voxel_size)
         self.grid_offset = np.asarray(dataset.info.config.grid_offset, dtype=np.float64)
         self.ambiguous = dataset.has_ambiguity
-        self.field_names = [field.name for field in fields_for(dataset.info.schema_version)]
+        self.field_names = [field.name for field in samples.fields_for(dataset.info.schema_version)]
         """The registered `storage.samples.SampleField`s it reads (names: a worker looks them up)."""
         if covers and not self.ambiguous:
             raise ValueError(
@@ -368,15 +357,15 @@ class ShardStream(IterableDataset[Batch]):
                 arrays[name] = whole_array(reader, name)
             return arrays[name]
 
-        shard_rows = ShardRows(self.source, self._shard_rows[rows], array)
-        fields = {name: SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
+        shard_rows = samples.ShardRows(self.source, self._shard_rows[rows], array)
+        fields = {name: samples.SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
         out: dict[int, _Prepared] = {}
         for slot, row in enumerate(rows.tolist()):
             local = int(self._shard_rows[row])
             cloud = keys[offsets[local] : offsets[local + 1]]
             listed = covers[cover_offsets[local] : cover_offsets[local + 1]] if self.ambiguous else None
             out[row] = _Prepared(
-                keys=resample_keys(cloud, self.num_points, self.seed, epoch, row),
+                keys=samples.resample_keys(cloud, self.num_points, self.seed, epoch, row),
                 view_state=int(masks[local, VIEW_STATE_COLUMN]),
                 label=int(masks[local, LABEL_COLUMN]),
                 covers=listed,
@@ -385,22 +374,22 @@ class ShardStream(IterableDataset[Batch]):
             )
         return out
 
-    def _batch(self, rows: npt.NDArray[np.int64], samples: list[_Prepared]) -> Batch:
+    def _batch(self, rows: npt.NDArray[np.int64], prepared: list[_Prepared]) -> Batch:
         width = self.num_views
-        keys = np.stack([s.keys for s in samples])
+        keys = np.stack([s.keys for s in prepared])
         extra: dict[str, npt.NDArray[Any]] = {}
         if self._support is not None:
-            extra["marginals"] = np.stack([s.marginals for s in samples if s.marginals is not None])
-            extra["support"] = bit_rows(self._support[rows], width)
+            extra["marginals"] = np.stack([s.marginals for s in prepared if s.marginals is not None])
+            extra["support"] = samples.bit_rows(self._support[rows], width)
         if self.covers:
-            listed = [s.covers if s.covers is not None else np.zeros(0, np.uint64) for s in samples]
-            extra["covers"], extra["cover_mask"] = padded_covers(listed, width)
+            listed = [s.covers if s.covers is not None else np.zeros(0, np.uint64) for s in prepared]
+            extra["covers"], extra["cover_mask"] = samples.padded_covers(listed, width)
         for name in self.field_names:
-            extra[name] = np.stack([s.fields[name] for s in samples])
-        batch: SampleBatch[npt.NDArray[Any]] = SampleBatch(
-            points=key_centres(keys, self.voxel_size, self.grid_offset),
-            view_state=bit_rows(np.array([s.view_state for s in samples], dtype=np.uint64), width),
-            label=bit_rows(np.array([s.label for s in samples], dtype=np.uint64), width),
+            extra[name] = np.stack([s.fields[name] for s in prepared])
+        batch: samples.SampleBatch[npt.NDArray[Any]] = samples.SampleBatch(
+            points=samples.key_centres(keys, self.voxel_size, self.grid_offset),
+            view_state=samples.bit_rows(np.array([s.view_state for s in prepared], dtype=np.uint64), width),
+            label=samples.bit_rows(np.array([s.label for s in prepared], dtype=np.uint64), width),
             index=rows.astype(np.int64, copy=True),
             **extra,
         )

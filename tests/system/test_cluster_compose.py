@@ -20,19 +20,8 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
-CASES = (
-    "local",
-    "submit",
-    "worker",
-    "driver",
-    "head",
-    "s3",
-    "down-up:submit",
-    "down-up:worker",
-    "down-up:driver",
-    "down-up:head",
-    "down-up:s3",
-)
+JOBS = ("submit", "worker", "driver", "head", "s3")
+CASES = ("local", *JOBS, *(f"down-up:{job}" for job in JOBS))
 
 pytestmark = [pytest.mark.cluster, pytest.mark.slow]
 
