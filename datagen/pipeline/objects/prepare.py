@@ -17,6 +17,7 @@ import trimesh
 
 from datagen.errors import ObjectError
 from datagen.pipeline.camera import max_fitting_radius
+from datagen.pipeline.objects.ply_strips import PlyError, has_strips, read_strip_ply
 from datagen.pipeline.objects.spec import BUILTIN_PREFIX, ObjectSpec
 from datagen.pipeline.objects.variants import make_variant
 from datagen.shapes import builtins
@@ -64,6 +65,8 @@ def load_mesh(spec: ObjectSpec) -> trimesh.Trimesh:
     path = Path(spec.source)
     if not path.is_file():
         raise ObjectError(f"{path}: mesh file not found; fix the path in the objects file ({spec.origin})")
+    if path.suffix.lower() == ".ply" and has_strips(path):
+        return _load_strip_ply(path)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -79,6 +82,19 @@ def load_mesh(spec: ObjectSpec) -> trimesh.Trimesh:
             "mesh, not a point cloud"
         )
     return loaded
+
+
+def _load_strip_ply(path: Path) -> trimesh.Trimesh:
+    """A PLY with triangle strips, which trimesh would read as bare points (`ply_strips`)."""
+    try:
+        vertices, faces = read_strip_ply(path)
+    except PlyError as exc:
+        raise ObjectError(
+            f"{path}: malformed triangle-strip PLY ({exc}); re-export it with triangle strips or faces"
+        ) from None
+    except OSError as exc:
+        raise ObjectError(f"{path}: cannot read the mesh ({exc.strerror or exc})") from None
+    return trimesh.Trimesh(vertices=vertices, faces=faces, process=False)
 
 
 def prepare_object(spec: ObjectSpec, config: GenerationConfig) -> PreparedObject:
