@@ -14,6 +14,8 @@ from typing import Annotated, Any
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.table import Table
+from rich.text import Text
 
 from schemas.errors import DatagenError
 
@@ -62,6 +64,28 @@ def dataset_options(url: str) -> dict[str, Any]:
 def say(text: str) -> None:
     """One line on stdout exactly as given: no markup, no highlighting, no wrapping."""
     console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
+Cell = str | Text
+
+
+def print_rows(columns: list[str], rows: list[list[Cell]], out: Console | None = None) -> None:
+    """A rich table on a terminal (``str`` cells are plain text, not markup); elsewhere (a pipe, a file,
+    a test runner) a tab-separated header and one tab-separated line per row, never wrapped, so a long
+    message stays on its line for grep and cut."""
+    out = out or console
+    if out.is_terminal:
+        table = Table(*columns)
+        for row in rows:
+            table.add_row(*(Text(cell) if isinstance(cell, str) else cell for cell in row))
+        out.print(table)
+        return
+    # Written past rich, which would expand the tabs to spaces.
+    lines: list[list[Cell]] = [list(columns), *rows]
+    for cells in lines:
+        plain = (cell.plain if isinstance(cell, Text) else cell for cell in cells)
+        out.file.write("\t".join(" ".join(text.split("\t")) for text in plain) + "\n")
+    out.file.flush()
 
 
 def progress_bar(remaining: bool = False) -> Progress:

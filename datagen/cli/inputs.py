@@ -1,4 +1,4 @@
-"""``datagen config show``, ``datagen objects builtins | show | synth | variants`` and ``datagen scan``: a
+"""``datagen config show``, ``datagen objects builtins | show | synth | variants | scan`` and ``datagen scan``: a
 job's inputs (generation configs, objects files, built-in, synthetic and varied shapes) and what each view
 sees.
 
@@ -18,7 +18,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from datagen.cli.common import ConfigOption, console, say, user_errors
+from datagen.cli.common import Cell, ConfigOption, console, error_console, print_rows, say, user_errors
 from datagen.config_io import config_to_toml, load_config
 from datagen.errors import DatagenError, OutputError
 from datagen.pipeline.thread_limits import single_threaded_blas
@@ -57,30 +57,32 @@ def objects_show(
     with user_errors(), single_threaded_blas():
         resolved = load_config(config)
         listing = read_objects_file(objects)
-        table = Table("line", "name", "object id", "faces", "watertight", "units", "scale", "size m")
+        rows: list[list[Cell]] = []
         failures = 0
         for entry in listing.entries:
             if isinstance(entry, ObjectLineError):
                 failures += 1
-                table.add_row(str(entry.line), "-", Text(entry.message, style="red"), "", "", "", "", "")
+                rows.append([str(entry.line), "-", Text(entry.message, style="red"), "", "", "", "", ""])
                 continue
             try:
                 prepared = prepare_object(entry, resolved)
             except DatagenError as exc:
                 failures += 1
-                table.add_row(str(entry.line), entry.name, Text(str(exc), style="red"), "", "", "", "", "")
+                rows.append([str(entry.line), entry.name, Text(str(exc), style="red"), "", "", "", "", ""])
                 continue
-            table.add_row(
-                str(entry.line),
-                entry.name,
-                entry.object_id[:16],
-                str(len(prepared.faces)),
-                "yes" if prepared.watertight else "[yellow]no[/yellow]",
-                prepared.units_guessed,
-                f"{prepared.scale:.4g}",
-                f"{prepared.size:.4f}",
+            rows.append(
+                [
+                    str(entry.line),
+                    entry.name,
+                    entry.object_id[:16],
+                    str(len(prepared.faces)),
+                    "yes" if prepared.watertight else Text("no", style="yellow"),
+                    prepared.units_guessed,
+                    f"{prepared.scale:.4g}",
+                    f"{prepared.size:.4f}",
+                ]
             )
-        console.print(table)
+        print_rows(["line", "name", "object id", "faces", "watertight", "units", "scale", "size m"], rows)
         _print_variants(listing.objects)
         console.print(f"{len(listing.entries) - failures} objects ready, {failures} with errors")
         if failures:
@@ -123,6 +125,46 @@ def objects_variants(
         listing = read_objects_file(objects)
         _write_text(out, variants_listing(listing, count, seed, out))
         say(f"wrote {out}: {len(listing.objects)} objects, each followed by {count} variants")
+
+
+def objects_scan(
+    folder: Annotated[Path, typer.Argument(help="Folder of meshes: ShapeNetCore, ModelNet or any tree.")],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Objects file to write (paths relative to it); else stdout.")
+    ] = None,
+) -> None:
+    """Write an objects file listing every mesh under FOLDER, named by its path, with its category where
+    the layout has one; name each file left out and why. Reads only each file's header."""
+    from datagen.pipeline.objects.scan import SNIFFERS, scan_listing, scan_meshes
+
+    with user_errors():
+        result = scan_meshes(folder)
+        if not result.meshes:
+            raise DatagenError(
+                f"{result.root}: holds no mesh files ({len(result.skipped)} skipped); "
+                f"give a folder of {', '.join(sorted(SNIFFERS))} files"
+            )
+        report = console
+        if out is None:
+            console.file.write(scan_listing(result, None))  # as written: no markup, emoji codes or wrapping
+            console.file.flush()
+            report = error_console
+        else:
+            _write_text(out, scan_listing(result, Path(out).absolute().parent.resolve()))
+        categories = len(result.categories)
+        summary = (
+            f"{len(result.meshes)} meshes in {categories} categories" if categories else f"{len(result.meshes)} meshes"
+        )
+        where = f"wrote {out}: " if out is not None else "listed "
+        report.print(
+            f"{where}{summary}; skipped {len(result.skipped)} files, left out {result.companions} "
+            "materials, textures and other companion files",
+            markup=False,
+            highlight=False,
+            soft_wrap=True,
+        )
+        if result.skipped:
+            print_rows(["skipped", "why"], [[str(s.path), Text(s.reason, style="red")] for s in result.skipped], report)
 
 
 def _write_text(path: Path, text: str) -> None:

@@ -37,6 +37,7 @@ objects_app.command("builtins")(inputs.objects_builtins)
 objects_app.command("show")(inputs.objects_show)
 objects_app.command("synth")(inputs.objects_synth)
 objects_app.command("variants")(inputs.objects_variants)
+objects_app.command("scan")(inputs.objects_scan)
 app.command("scan")(inputs.scan)
 
 poco_app.command("train")(poco.poco_train)

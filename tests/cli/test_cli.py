@@ -143,7 +143,7 @@ def test_objects_show_good_and_bad_lines(runner: CliRunner, tmp_path: Path) -> N
     assert "unknown key 'colour'" in out
     assert "NaN or infinite vertex coordinates" in out
     assert "does not fit the image" in out
-    rows = {line.split("│")[1].strip(): line for line in out.splitlines() if line.count("│") >= 3}
+    rows = {line.split("\t")[0]: line for line in out.splitlines() if line.count("\t") == 7}
     assert "not found" in rows["4"] and "colour" in rows["5"] and "NaN" in rows["6"] and "fit" in rows["7"]
     assert "2 objects ready, 4 with errors" in out
 

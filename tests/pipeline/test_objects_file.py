@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from datagen.errors import ObjectsFileError
-from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
+from datagen.pipeline.objects.objects_file import ObjectLineError, object_line, read_objects_file, variants_listing
 from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec, builtin_object_id, file_object_id
 from datagen.shapes import builtins
 
@@ -149,6 +149,26 @@ def test_variant_option_is_parsed_and_names_the_variant(meshes: Path) -> None:
     assert builtin.options == ObjectOptions(variant=3)
     assert [seven.name, zero.name, builtin.name, named.name] == ["tetra-v7", "tetra-v0", f"{name}-v3", "mine"]
     assert builtin.object_id == builtin_object_id(builtins.builtin_generator_identity(name), ObjectOptions(variant=3))
+
+
+def test_category_labels_an_object_without_changing_its_id(meshes: Path) -> None:
+    listing = listing_of(
+        meshes,
+        "tetra.obj category=02691156\n'other.obj' name=o category='two words'\nbuiltin:capsule category=c\n",
+    )
+    assert listing.errors == []
+    tetra, other, capsule = listing.objects
+    assert (tetra.category, other.category, capsule.category) == ("02691156", "two words", "c")
+    plain = listing_of(meshes, "tetra.obj\n", name="plain.txt").objects[0]
+    assert plain.category is None and plain.object_id == tetra.object_id
+    lines = [object_line(spec, meshes) for spec in listing.objects]
+    assert lines == [
+        "tetra.obj category=02691156",
+        "other.obj name=o 'category=two words'",
+        "builtin:capsule category=c",
+    ]
+    varied = variants_listing(listing, 1, 0, meshes / "varied.txt").splitlines()
+    assert all("category=" in line for line in varied[1:])
 
 
 def test_builtin_ids_differ_between_builtins(meshes: Path) -> None:

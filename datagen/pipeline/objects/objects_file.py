@@ -1,7 +1,8 @@
 """Parse objects files: one object per line, ``PATH [key=value ...]``.
 
 Keys: ``name``, ``units`` (auto|m|mm), ``up`` (z|y), ``size`` (metres), ``variant`` (a seed: a
-deformed copy, see `datagen.pipeline.objects.variants`). ``#`` starts a comment; blank lines are
+deformed copy, see `datagen.pipeline.objects.variants`), ``category`` (a label, e.g. ShapeNet's synset
+id; not part of the object id). ``#`` starts a comment; blank lines are
 skipped; relative paths resolve against the objects file's folder; ``builtin:NAME`` names a built-in
 shape. A bad line does not stop the others: the listing keeps it as an `ObjectLineError` naming the
 file, the line and the fix, so a job can record it and go on. `variants_listing` writes the text of an
@@ -28,8 +29,10 @@ from datagen.pipeline.objects.spec import (
 from datagen.pipeline.objects.variants import draw_variant_seeds
 from datagen.shapes import builtins
 
-ALLOWED_KEYS = ("name", "units", "up", "size", "variant")
-LINE_SYNTAX = "'PATH [name=..] [units=auto|m|mm] [up=z|y] [size=METRES] [variant=SEED]', or 'builtin:NAME'"
+ALLOWED_KEYS = ("name", "units", "up", "size", "variant", "category")
+LINE_SYNTAX = (
+    "'PATH [name=..] [units=auto|m|mm] [up=z|y] [size=METRES] [variant=SEED] [category=..]', or 'builtin:NAME'"
+)
 _DIGITS = re.compile(r"[0-9]+")
 
 
@@ -123,7 +126,8 @@ def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectE
     except ValueError as exc:
         return fail(str(exc))
     if target.startswith(BUILTIN_PREFIX):
-        return _builtin_spec(target, options.get("name"), object_options, origin, number)
+        spec = _builtin_spec(target, options.get("name"), object_options, origin, number)
+        return replace(spec, category=options.get("category")) if isinstance(spec, ObjectSpec) else spec
     mesh_path = Path(target).expanduser()
     if not mesh_path.is_absolute():
         mesh_path = path.parent / mesh_path
@@ -144,6 +148,7 @@ def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectE
         origin=f"{origin}:{number}",
         line=number,
         named="name" in options,
+        category=options.get("category"),
     )
 
 
@@ -253,7 +258,7 @@ def variants_listing(listing: ObjectsListing, count: int, seed: int, out: Path) 
     seeds = draw_variant_seeds(count, seed)
     _check_can_vary(listing, out)
     folder = Path(out).absolute().parent.resolve()
-    source = _relative(listing.path, folder)
+    source = relative_path(listing.path, folder)
     lines = [f"# {count} variants of each object of {source}, seed {seed} (datagen objects variants)"]
     for spec in listing.objects:
         lines.append(object_line(spec, folder))
@@ -264,7 +269,7 @@ def variants_listing(listing: ObjectsListing, count: int, seed: int, out: Path) 
 def object_line(spec: ObjectSpec, folder: Path, variant: int | None = None) -> str:
     """The objects-file line of ``spec`` (with ``variant`` set, when given) for a file in ``folder``."""
     options = spec.options if variant is None else replace(spec.options, variant=variant)
-    tokens = [spec.source if spec.is_builtin else _relative(Path(spec.source), folder)]
+    tokens = [spec.source if spec.is_builtin else relative_path(Path(spec.source), folder)]
     if spec.named:
         tokens.append(f"name={spec.name if variant is None else default_name(spec.name, options)}")
     if options.units != "auto":
@@ -275,6 +280,8 @@ def object_line(spec: ObjectSpec, folder: Path, variant: int | None = None) -> s
         tokens.append(f"size={options.size!r}")
     if options.variant is not None:
         tokens.append(f"variant={options.variant}")
+    if spec.category is not None:
+        tokens.append(f"category={spec.category}")
     return " ".join(shlex.quote(token) for token in tokens)
 
 
@@ -293,7 +300,7 @@ def _check_can_vary(listing: ObjectsListing, out: Path) -> None:
         raise OutputError(f"{out}: is the objects file being varied; write the variants to another file")
 
 
-def _relative(path: Path, folder: Path) -> str:
+def relative_path(path: Path, folder: Path) -> str:
     """``path`` relative to ``folder``; absolute when the two share no folder below the root (``/tmp/x``
     and ``/data/meshes``), where a relative path would only break when either moves."""
     resolved = path.resolve()

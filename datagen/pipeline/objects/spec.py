@@ -50,6 +50,9 @@ class ObjectSpec:
     """For built-ins: generator name, parameters and version (what the id is made of)."""
     named: bool = False
     """Whether the name was given with ``name=`` (else it is the file stem or built-in name)."""
+    category: str | None = None
+    """A label from ``category=`` (ShapeNet's synset id, ModelNet's class folder); it groups objects
+    and never enters the object id, so labelling a listing changes no object."""
 
     @property
     def is_builtin(self) -> bool:
