@@ -62,10 +62,6 @@ def open_dataset(url: str, storage_options: dict[str, Any] | None = None) -> Dat
 class Dataset:
     """Random access to samples (``ds[i]``), filters, object-level splits, shuffled iteration."""
 
-    _integrity_checks = True
-    """Verify each shard whole before its first read (`ShardReader.verify`). Off only to measure what
-    the check costs, as the former benchmarks/reader.py did on an instance."""
-
     def __init__(
         self, location: Location, info: DatasetInfo, index: pa.Table, verified: set[str] | None = None
     ) -> None:
@@ -106,8 +102,8 @@ class Dataset:
     def shard(self, relative: str) -> ShardReader:
         reader = self._shards.get(relative)
         if reader is None:
-            verify = self._integrity_checks and relative not in self._verified
-            reader = ShardReader(self.location, relative, verify=verify)
+            # verified whole before its first read, once per dataset and its selections
+            reader = ShardReader(self.location, relative, verify=relative not in self._verified)
             self._verified.add(relative)
             self._shards[relative] = reader
             if len(self._shards) > SHARD_CACHE:
@@ -214,9 +210,7 @@ class Dataset:
     def select(self, rows: npt.ArrayLike) -> Dataset:
         """A dataset over a subset of index rows (in the given order)."""
         chosen = self.index.take(pa.array(np.asarray(rows, dtype=np.int64)))
-        selected = Dataset(self.location, self.info, chosen, self._verified)
-        selected._integrity_checks = self._integrity_checks
-        return selected
+        return Dataset(self.location, self.info, chosen, self._verified)
 
     def filter(
         self,
