@@ -47,6 +47,7 @@ INTERNAL = {
     ("datagen.shapes.families", "ShapeError"): "synthesize() catches it and draws new parameters; built-ins are fixed",
     ("datagen.inspection.label_check", "SolverFailure"): "becomes a problem line of `shards validate`",
     ("datagen.pipeline.setcover", "_BudgetExceeded"): "the solver's own control flow",
+    ("datagen.pipeline.objects.ply_strips", "PlyError"): "load_mesh turns it into an ObjectError naming the file",
 }
 """Exception classes that are not `DatagenError`s, and why no user ever sees them."""
 
