@@ -11,8 +11,10 @@ vertices and faces as its triangle-list twin.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -160,73 +162,83 @@ _Values = dict[str, dict[str, list[npt.NDArray[np.generic]] | npt.NDArray[np.gen
 """Element name -> property name -> a column (single values) or a list of arrays (list values)."""
 
 
+def _list_rows(
+    element: _Element,
+    take_count: Callable[[_Property], int],
+    take: Callable[[_Property, int], npt.NDArray[np.generic]],
+) -> dict[str, list[npt.NDArray[np.generic]] | npt.NDArray[np.generic]]:
+    """The columns of an element with a list property, read row by row in the file's order: each
+    list's length by ``take_count``, then its values (or a single value) by ``take``."""
+    rows: dict[str, list[npt.NDArray[np.generic]]] = {p.name: [] for p in element.properties}
+    for _ in range(element.count):
+        for p in element.properties:
+            length = take_count(p) if p.count_dtype is not None else 1
+            if length < 0:
+                raise PlyError(f"element {element.name!r} has a list of negative length")
+            rows[p.name].append(take(p, length))
+    return {p.name: _column(p, rows[p.name]) for p in element.properties}
+
+
 def _read_binary(elements: list[_Element], body: bytes, order: str) -> _Values:
     values: _Values = {}
-    offset = 0
+    offset, where = 0, ""
+
+    def read(dtype: np.dtype[Any], count: int) -> npt.NDArray[Any]:
+        nonlocal offset
+        if offset + dtype.itemsize * count > len(body):
+            raise PlyError(f"the file ends inside element {where!r}")
+        found = np.frombuffer(body, dtype=dtype, count=count, offset=offset)
+        offset += dtype.itemsize * count
+        return found
+
+    def count_of(prop: _Property) -> int:
+        return int(read(np.dtype(order + str(prop.count_dtype)), 1)[0])
+
+    def values_of(prop: _Property, count: int) -> npt.NDArray[Any]:
+        return read(np.dtype(order + prop.dtype), count)
+
     for element in elements:
-        columns: dict[str, list[npt.NDArray[np.generic]] | npt.NDArray[np.generic]] = {}
+        where = element.name
         if all(p.count_dtype is None for p in element.properties):
-            dtype = np.dtype([(p.name, order + p.dtype) for p in element.properties])
-            if offset + dtype.itemsize * element.count > len(body):
-                raise PlyError(f"the file ends inside element {element.name!r}")
-            table = np.frombuffer(body, dtype=dtype, count=element.count, offset=offset)
-            offset += dtype.itemsize * element.count
-            columns = {p.name: table[p.name] for p in element.properties}
+            table = read(np.dtype([(p.name, order + p.dtype) for p in element.properties]), element.count)
+            values[element.name] = {p.name: table[p.name] for p in element.properties}
         else:
-            rows: dict[str, list[npt.NDArray[np.generic]]] = {p.name: [] for p in element.properties}
-            for _ in range(element.count):
-                for p in element.properties:
-                    length = 1
-                    if p.count_dtype is not None:
-                        length_type = np.dtype(order + p.count_dtype)
-                        if offset + length_type.itemsize > len(body):
-                            raise PlyError(f"the file ends inside element {element.name!r}")
-                        length = int(np.frombuffer(body, dtype=length_type, count=1, offset=offset)[0])
-                        offset += length_type.itemsize
-                    item = np.dtype(order + p.dtype)
-                    if length < 0 or offset + item.itemsize * length > len(body):
-                        raise PlyError(f"the file ends inside element {element.name!r}")
-                    rows[p.name].append(np.frombuffer(body, dtype=item, count=length, offset=offset))
-                    offset += item.itemsize * length
-            columns = {p.name: _column(p, rows[p.name]) for p in element.properties}
-        values[element.name] = columns
+            values[element.name] = _list_rows(element, count_of, values_of)
     return values
 
 
 def _read_ascii(elements: list[_Element], body: bytes) -> _Values:
     tokens = body.split()
     values: _Values = {}
-    at = 0
+    at, where = 0, ""
+
+    def read(count: int) -> list[bytes]:
+        nonlocal at
+        chunk = tokens[at : at + count]
+        if len(chunk) < count:
+            raise PlyError(f"the file ends inside element {where!r}")
+        at += count
+        return chunk
+
+    def count_of(prop: _Property) -> int:
+        return int(read(1)[0])
+
+    def values_of(prop: _Property, count: int) -> npt.NDArray[Any]:
+        return np.array(read(count), dtype=np.float64)
+
     for element in elements:
-        columns: dict[str, list[npt.NDArray[np.generic]] | npt.NDArray[np.generic]] = {}
+        where = element.name
         try:
             if all(p.count_dtype is None for p in element.properties):
                 width = len(element.properties)
-                chunk = tokens[at : at + width * element.count]
-                if len(chunk) < width * element.count:
-                    raise PlyError(f"the file ends inside element {element.name!r}")
-                table = np.array(chunk, dtype=np.float64).reshape(element.count, width)
-                at += width * element.count
-                columns = {p.name: table[:, i] for i, p in enumerate(element.properties)}
+                table = np.array(read(width * element.count), dtype=np.float64).reshape(element.count, width)
+                values[element.name] = {p.name: table[:, i] for i, p in enumerate(element.properties)}
             else:
-                rows: dict[str, list[npt.NDArray[np.generic]]] = {p.name: [] for p in element.properties}
-                for _ in range(element.count):
-                    for p in element.properties:
-                        length = 1
-                        if p.count_dtype is not None:
-                            length = int(tokens[at])
-                            at += 1
-                        chunk = tokens[at : at + length]
-                        if length < 0 or len(chunk) < length:
-                            raise PlyError(f"the file ends inside element {element.name!r}")
-                        rows[p.name].append(np.array(chunk, dtype=np.float64))
-                        at += length
-                columns = {p.name: _column(p, rows[p.name]) for p in element.properties}
+                values[element.name] = _list_rows(element, count_of, values_of)
         except (IndexError, ValueError) as exc:
             if isinstance(exc, PlyError):
                 raise
             raise PlyError(f"element {element.name!r} holds a value that is not a number, or ends early") from None
-        values[element.name] = columns
     return values
 
 
