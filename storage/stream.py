@@ -344,19 +344,19 @@ class ShardStream(IterableDataset[Batch]):
         base = self._reader_location()
         files = _MetadataKept(base.fs, base.root, base.url, base.storage_options)
         reader = ShardReader(files, self.shards[shard], verify=True)
-        keys = whole_array(reader, keys_array(self.source))
-        offsets = whole_array(reader, offsets_array(self.source))
-        masks = whole_array(reader, MASKS)
-        if self.ambiguous:
-            covers, cover_offsets = whole_array(reader, COVERS), whole_array(reader, offsets_array(COVERS))
-        rows = self._rows[shard][needed[self._rows[shard]]]
         arrays: dict[str, npt.NDArray[Any]] = {}
 
         def array(name: str) -> npt.NDArray[Any]:
+            """Each array decoded once per shard, whoever asks (this method or a `SampleField`)."""
             if name not in arrays:
                 arrays[name] = whole_array(reader, name)
             return arrays[name]
 
+        keys, offsets = array(keys_array(self.source)), array(offsets_array(self.source))
+        masks = array(MASKS)
+        if self.ambiguous:
+            covers, cover_offsets = array(COVERS), array(offsets_array(COVERS))
+        rows = self._rows[shard][needed[self._rows[shard]]]
         shard_rows = samples.ShardRows(self.source, self._shard_rows[rows], array)
         fields = {name: samples.SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
         out: dict[int, _Prepared] = {}
