@@ -56,7 +56,21 @@ AMBIGUITY_FIELDS = (
 """Version 2: the views of any minimum cover, how many minimum covers there are (a lower bound
 unless ``min_covers_exact``)."""
 
-INDEX_SCHEMAS: dict[int, pa.Schema] = {1: INDEX_SCHEMA_V1, 2: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS])}
+NEXT_VIEW_FIELDS = (
+    pa.field("visible_size", pa.int32(), nullable=False),
+    pa.field("best_view", pa.int16(), nullable=False),
+    pa.field("best_view_ties", pa.int16(), nullable=False),
+    pa.field("best_gain", pa.int32(), nullable=False),
+)
+"""Version 3: the keys any view sees (the visibility gains' denominator), the best next view (the
+largest visibility gain outside the case, lowest index among equals; -1 when the case has every view),
+how many views share its gain, and that gain (0 without a next view)."""
+
+INDEX_SCHEMAS: dict[int, pa.Schema] = {
+    1: INDEX_SCHEMA_V1,
+    2: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS]),
+    3: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS, *NEXT_VIEW_FIELDS]),
+}
 INDEX_SCHEMA = INDEX_SCHEMAS[SCHEMA_VERSION]
 """The index as this version writes it."""
 
@@ -82,12 +96,14 @@ TASK_STEPS = (
     "refine_cases",
     "coverage",
     "labels",
+    "next_view",
     "write",
 )
 """The timed steps of one task, in the order they run: preparing the object (0 when the worker had
 it prepared for another rotation), P_gt, imaging the n views, refining each single view, drawing the
-long-tail cases, refining each multi-view case, counting P_full's coverage, the exact labels, and
-building and writing the shard and index fragment."""
+long-tail cases, refining each multi-view case, counting P_full's coverage, the exact labels, the
+next-view labels (gains and the occupancy grid's ray walks), and building and writing the shard and
+index fragment."""
 
 
 class StepSeconds(BaseModel):

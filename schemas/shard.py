@@ -24,12 +24,23 @@ name                   dtype         shape        meaning
 ``cover_rows``         uint64        (M,)         per-task undominated masks of P_full (version 2)
 ``covers``             uint64        (C,)         each sample's minimum covers (version 2)
 ``covers_offsets``     int64         (N + 1,)     sample i owns ``covers[o[i]:o[i+1]]``
+``view_gains``         uint32        (N, n)       keys of V_i no view of S sees (version 3)
+``coverage_gains``     uint32        (N, n)       keys of C_i no C_s of S holds (version 3)
+``gain_totals``        uint64        (2,)         per-task denominators: |union of V_i|, |P_full|
+``grid_frame``         float64       (4,)         per-task grid: corner x, y, z and cell size, m
+``grid_hits``          uint8         (n, 4096)    per view, bit-packed cells its rays end in
+``grid_misses``        uint8         (n, 4096)    per view, bit-packed cells they only cross
 =====================  ============  ===========  ==============================================
 
 Version 2 lets a reader judge any view set without a solver: U(S)'s set cover rows are exactly the
 ``cover_rows`` that miss S (a view set covers U when it meets each of them), and ``covers`` lists
 the minimum covers the label was chosen from (all of them, or the label and the first others up to
 the config's ``label_cover_cap``; the index says how many there are and whether that is exact).
+
+Version 3 adds the next-best-view families' labels (docs/pipeline.md section 8.1-8.2): every view's
+gain counted over the visibility and over the coverage sets, with both denominators, and the
+planners' 32^3 occupancy grid, kept as each view's ray cells once per task; a case's grid is its
+views inserted in ascending order (`storage.occupancy.case_grid`).
 
 Every key set of a sample or view is sorted lexicographically (x, y, z) and unique. Rows are
 ordered by (case size, case mask). Group attributes (`ShardAttributes`) say what the task was.
@@ -57,6 +68,15 @@ COVER_ROWS = "cover_rows"
 """Version 2: the task's undominated P_full masks, sorted (the rows of every case's set cover)."""
 COVERS = "covers"
 """Version 2: each sample's minimum covers (masks), sorted as tuples of views, with offsets."""
+VIEW_GAINS = "view_gains"
+COVERAGE_GAINS = "coverage_gains"
+GAIN_TOTALS = "gain_totals"
+GRID_FRAME = "grid_frame"
+GRID_HITS = "grid_hits"
+GRID_MISSES = "grid_misses"
+NEXT_VIEW_ARRAYS = (VIEW_GAINS, COVERAGE_GAINS, GAIN_TOTALS, GRID_FRAME, GRID_HITS, GRID_MISSES)
+"""Version 3: the next-best-view labels and the occupancy grid's per-view ray cells."""
+GAIN_DTYPE = np.dtype(np.uint32)
 
 KEY_DTYPE = np.dtype(np.int16)
 OFFSET_DTYPE = np.dtype(np.int64)
@@ -78,6 +98,8 @@ def array_names(schema_version: int = SCHEMA_VERSION) -> list[str]:
         names += [keys_array(name), offsets_array(name)]
     if schema_version >= 2:
         names += [COVER_ROWS, COVERS, offsets_array(COVERS)]
+    if schema_version >= 3:
+        names += list(NEXT_VIEW_ARRAYS)
     return sorted(names)
 
 

@@ -1,12 +1,13 @@
 """Version of the on-disk dataset layout; bumped on any change a reader must know about.
 
 1: samples, labels and the per-task sets. 2 adds each label's ambiguity: every minimum cover (up to
-the config's cap), their count and support, and the task's cover rows. Readers read both; writers
-add tasks to a dataset in its own version.
+the config's cap), their count and support, and the task's cover rows. 3 adds the next-best-view
+labels (every view's gain, the best next view) and the occupancy grid's per-view ray cells. Readers
+read every version; writers add tasks to a dataset in its own version.
 """
 
-SCHEMA_VERSION = 2
-READABLE_SCHEMA_VERSIONS = (1, 2)
+SCHEMA_VERSION = 3
+READABLE_SCHEMA_VERSIONS = (1, 2, 3)
 
 
 def unreadable_version(version: int) -> str | None:

@@ -108,9 +108,10 @@ WRITTEN_CODECS = ("bytes", *(codec.to_dict()["name"] for codec in COMPRESSORS))
 
 
 def _plain(codecs: list[dict[str, Any]]) -> bool:
-    """A chunk codec list as the writer writes it: little-endian bytes, then `COMPRESSORS`."""
+    """A chunk codec list as the writer writes it: little-endian bytes (zarr names no endianness for a
+    one-byte type), then `COMPRESSORS`."""
     names = tuple(codec.get("name") for codec in codecs)
-    return names == WRITTEN_CODECS and codecs[0] == PLAIN_BYTES
+    return names == WRITTEN_CODECS and codecs[0] in (PLAIN_BYTES, {"name": "bytes"})
 
 
 def _checked(data: bytes) -> bytes:

@@ -147,15 +147,17 @@ def load_memory(
     rows: Rows | None = None,
     objects: Sequence[str] | None = None,
     covers: bool = True,
+    fields: Sequence[str] = (),
     progress: Progress | None = None,
     storage_options: dict[str, Any] | None = None,
 ) -> MemoryDataset:
     """Read samples of ``dataset`` (a URL or an open `Dataset`) into memory, shard by shard.
 
-    ``rows`` (dataset rows, held in that order) and ``objects`` (object ids or names) choose the
-    samples; both given, the rows of those objects; neither, every sample. ``covers=False`` leaves a
-    version-2 dataset's minimum covers unread. A damaged dataset is a `StorageError` naming the
-    file and the fix (`storage.reader`).
+        ``rows`` (dataset rows, held in that order) and ``objects`` (object ids or names) choose the
+        samples; both given, the rows of those objects; neither, every sample. ``covers=False`` leaves a
+        version-2 dataset's minimum covers unread; ``fields`` names optional sample fields to read too
+    (``"grid"``: 128 KB a sample). A damaged dataset is a `StorageError` naming the
+        file and the fix (`storage.reader`).
     """
     check_source(source)
     found = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, storage_options)
@@ -174,7 +176,7 @@ def load_memory(
     pieces: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.int16]]] = []
     cover_pieces: list[tuple[npt.NDArray[np.int64], MaskArray, npt.NDArray[np.int64]]] = []
     universe_pieces: list[tuple[npt.NDArray[np.int64], MaskArray, npt.NDArray[np.int64]]] = []
-    sample_fields = fields_for(found.info.schema_version)
+    sample_fields = fields_for(found.info.schema_version, fields)
     field_pieces: dict[str, list[tuple[npt.NDArray[np.int64], npt.NDArray[Any]]]] = {f.name: [] for f in sample_fields}
     done = 0
     for relative in sorted(groups):  # the reader's order: shards by path, samples in index order

@@ -21,7 +21,19 @@ import pyarrow.compute as pc
 
 from schemas.dataset import DatasetInfo
 from schemas.index import FailureRecord
-from schemas.shard import COVER_ROWS, COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, offsets_array
+from schemas.shard import (
+    COVER_ROWS,
+    COVERAGE_GAINS,
+    COVERS,
+    GAIN_TOTALS,
+    GRID_HITS,
+    GRID_MISSES,
+    LABEL_COLUMN,
+    MASKS,
+    VIEW_GAINS,
+    VIEW_STATE_COLUMN,
+    offsets_array,
+)
 from storage.covers import cover_marginals, universe_rows
 from storage.dataset_info import read_info
 from storage.index import INDEX_COVERAGE_FILE as INDEX_COVERAGE_FILE
@@ -29,7 +41,8 @@ from storage.index import INDEX_FILE as INDEX_FILE
 from storage.index import finalise as finalise
 from storage.index import load_index
 from storage.location import Location, StorageError, open_location
-from storage.samples import key_centres, mask_bits, split_by_object
+from storage.occupancy import case_grid
+from storage.samples import best_views, key_centres, mask_bits, split_by_object
 from storage.shards import ShardReader
 from storage.store_errors import check_store, is_store_failure, storage_failure
 from storage.writer import read_failures
@@ -149,6 +162,34 @@ class Dataset:
             exact=bool(self._column("min_covers_exact")[i]),
             support=int(self._column("label_support")[i]),
             universe_rows=universe_rows(shard.array(COVER_ROWS), view_state),
+        )
+
+    @property
+    def has_next_view(self) -> bool:
+        """Whether the samples carry the next-view labels and occupancy grids (schema version 3)."""
+        return self.info.schema_version >= 3
+
+    def next_view(self, i: int, grid: bool = False) -> NextView:
+        """Sample i's gains, best next view and, with ``grid``, its occupancy grid (version 3)."""
+        if not self.has_next_view:
+            raise StorageError(
+                f"{self.url}: a version-{self.info.schema_version} dataset keeps no next-view labels; add them with "
+                f"`datagen shards relabel {self.url} --out NEW_URL` (no re-imaging)"
+            )
+        shard = self.shard(self._shard_col[i])
+        row = int(self._row_col[i])
+        gains = shard.array(VIEW_GAINS)[row]
+        case = self.masks(i)[0]
+        best, ties = best_views(gains[None, :], np.array([case], dtype=np.uint64), gains.shape[0])
+        totals = shard.array(GAIN_TOTALS)
+        return NextView(
+            view_gains=gains,
+            coverage_gains=shard.array(COVERAGE_GAINS)[row],
+            visible_size=int(totals[0]),
+            full_size=int(totals[1]),
+            best_view=int(best[0]),
+            best_view_ties=int(ties[0]),
+            grid=case_grid(shard.array(GRID_HITS), shard.array(GRID_MISSES), case) if grid else None,
         )
 
     def _column(self, name: str) -> npt.NDArray[Any]:
@@ -300,6 +341,25 @@ class LabelAmbiguity:
     def covers_universe(self, views: int) -> bool:
         """Whether the view set ``views`` (a mask) covers U."""
         return bool(((self.universe_rows & np.uint64(views)) != 0).all())
+
+
+@dataclass(frozen=True)
+class NextView:
+    """What the next-best-view planners learn from one sample (schema version 3)."""
+
+    view_gains: npt.NDArray[np.uint32]
+    """(n,) keys of each view's visibility set that the case has not seen."""
+    coverage_gains: npt.NDArray[np.uint32]
+    """(n,) keys of P_full each view would add to the case's coverage."""
+    visible_size: int
+    """Keys any view sees: the visibility gains' denominator."""
+    full_size: int
+    """|P_full|: the coverage gains' denominator."""
+    best_view: int
+    """The largest visibility gain outside the case, lowest index first; -1 for a case of every view."""
+    best_view_ties: int
+    grid: npt.NDArray[np.float32] | None
+    """(32, 32, 32) occupancy probabilities [x, y, z] when asked for."""
 
 
 def mask_to_bools(mask: int, width: int) -> npt.NDArray[np.bool_]:

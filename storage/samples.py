@@ -13,6 +13,9 @@ the same things through these functions:
   `storage.torch`, osvp): its numpy arrays, or the same as torch tensors (`SampleBatch.tensors`); the
   listed minimum covers are padded to the batch's longest listing by `padded_covers`;
 - the rows a reader holds are chosen once, by `storage.reader.Dataset.chosen_rows`;
+- a view's gain reaches a network normalised by its task's denominator, and the best next view is
+  the largest visibility gain outside the case, lowest index first (`best_views`); a case's occupancy
+  grid is built from the task's per-view ray cells (`storage.occupancy`) only when asked for;
 - a split by object holds out ``round(fraction * objects)`` objects (at least one when the fraction
   is positive) drawn by a permutation seeded with ``(seed, number of objects)``, so every sample of an
   object lands on one side; a split by sample permutes the rows with ``(seed, number of samples)``.
@@ -28,7 +31,17 @@ import numpy as np
 import numpy.typing as npt
 
 from schemas.errors import DatagenError
-from schemas.shard import offsets_array
+from schemas.shard import (
+    COVERAGE_GAINS,
+    GAIN_TOTALS,
+    GRID_HITS,
+    GRID_MISSES,
+    MASKS,
+    VIEW_GAINS,
+    VIEW_STATE_COLUMN,
+    offsets_array,
+)
+from storage.occupancy import case_grid
 
 if TYPE_CHECKING:
     import torch
@@ -82,6 +95,16 @@ class SampleBatch(Generic[ArrayT]):
     cloud_size: ArrayT | None = None
     """(B,) int64: points in the stored cloud ``points`` was drawn from (fewer than N: drawn with
     repeats). A `SampleField`: the in-memory and streaming readers fill it."""
+    view_gain: ArrayT | None = None
+    """(B, n) float32 (version 3): each view's new keys of the visibility sets over all keys any view
+    sees (MA-SCVP's PCNBV target)."""
+    coverage_gain: ArrayT | None = None
+    """(B, n) float32 (version 3): each view's new keys of P_full over |P_full|."""
+    best_view: ArrayT | None = None
+    """(B,) int64 (version 3): the best next view (NBVNet's class), -1 when the case has every view."""
+    grid: ArrayT | None = None
+    """(B, 32, 32, 32) float32 (version 3, read only when asked for): the case's occupancy
+    probabilities indexed [x, y, z], 0.5 unknown (`storage.occupancy`)."""
 
     def __len__(self) -> int:
         return len(self.index)  # type: ignore[arg-type]
@@ -134,6 +157,8 @@ class SampleField:
     name: str
     since: int
     read: Callable[[ShardRows], npt.NDArray[Any]]
+    optional: bool = False
+    """Read only when a reader is asked for it by name (large, or costly to build)."""
 
 
 SAMPLE_FIELDS: dict[str, SampleField] = {}
@@ -141,31 +166,97 @@ SAMPLE_FIELDS: dict[str, SampleField] = {}
 
 
 def register_field(
-    name: str, since: int = 1
+    name: str, since: int = 1, optional: bool = False
 ) -> Callable[[Callable[[ShardRows], npt.NDArray[Any]]], Callable[[ShardRows], npt.NDArray[Any]]]:
     """Register the decorated reader as field ``name`` (a `SampleBatch` attribute) of datasets of
-    schema version ``since`` or later."""
+    schema version ``since`` or later; an ``optional`` one is read only when asked for."""
     if name not in {field.name for field in fields(SampleBatch)}:
         raise ValueError(f"{name!r} is no SampleBatch field; declare it on SampleBatch first")
 
     def register(read: Callable[[ShardRows], npt.NDArray[Any]]) -> Callable[[ShardRows], npt.NDArray[Any]]:
         if name in SAMPLE_FIELDS:
             raise ValueError(f"sample field {name!r} is registered twice")
-        SAMPLE_FIELDS[name] = SampleField(name, since, read)
+        SAMPLE_FIELDS[name] = SampleField(name, since, read, optional)
         return read
 
     return register
 
 
-def fields_for(schema_version: int) -> list[SampleField]:
-    """The registered fields a dataset of ``schema_version`` has, sorted by name."""
-    return [SAMPLE_FIELDS[name] for name in sorted(SAMPLE_FIELDS) if SAMPLE_FIELDS[name].since <= schema_version]
+def fields_for(schema_version: int, asked: Sequence[str] = ()) -> list[SampleField]:
+    """The registered fields a reader of a dataset of ``schema_version`` reads, sorted by name: every
+    one the version has, the optional ones only when ``asked`` names them. Naming a field that is not
+    registered, or that the version lacks, is a `ValueError`."""
+    for name in asked:
+        found = SAMPLE_FIELDS.get(name)
+        if found is None:
+            known = ", ".join(sorted(SAMPLE_FIELDS))
+            raise ValueError(f"fields: {name!r} is no sample field; the fields are {known}")
+        if found.since > schema_version:
+            raise ValueError(
+                f"fields: {name!r} needs a dataset of schema version {found.since}; this one is version "
+                f"{schema_version} (add it with `datagen shards relabel`)"
+            )
+    return [
+        field
+        for name, field in sorted(SAMPLE_FIELDS.items())
+        if field.since <= schema_version and (not field.optional or name in asked)
+    ]
 
 
 @register_field("cloud_size")
 def _cloud_size(rows: ShardRows) -> npt.NDArray[np.int64]:
     offsets = np.asarray(rows.array(offsets_array(rows.source)), dtype=np.int64)
     return offsets[rows.local + 1] - offsets[rows.local]
+
+
+def _cases(rows: ShardRows) -> npt.NDArray[np.uint64]:
+    return np.asarray(rows.array(MASKS), dtype=np.uint64)[rows.local, VIEW_STATE_COLUMN]
+
+
+@register_field("view_gain", since=3)
+def _view_gain(rows: ShardRows) -> npt.NDArray[np.float32]:
+    gains = np.asarray(rows.array(VIEW_GAINS))[rows.local]
+    return _normalised(gains, int(rows.array(GAIN_TOTALS)[0]))
+
+
+@register_field("coverage_gain", since=3)
+def _coverage_gain(rows: ShardRows) -> npt.NDArray[np.float32]:
+    gains = np.asarray(rows.array(COVERAGE_GAINS))[rows.local]
+    return _normalised(gains, int(rows.array(GAIN_TOTALS)[1]))
+
+
+@register_field("best_view", since=3)
+def _best_view(rows: ShardRows) -> npt.NDArray[np.int64]:
+    gains = np.asarray(rows.array(VIEW_GAINS))[rows.local]
+    return best_views(gains, _cases(rows), gains.shape[1])[0]
+
+
+@register_field("grid", since=3, optional=True)
+def _grid(rows: ShardRows) -> npt.NDArray[np.float32]:
+    hits, misses = rows.array(GRID_HITS), rows.array(GRID_MISSES)
+    grids = [case_grid(hits, misses, case) for case in _cases(rows).tolist()]
+    return np.stack(grids) if grids else np.zeros((0, 32, 32, 32), dtype=np.float32)
+
+
+def _normalised(gains: npt.NDArray[Any], total: int) -> npt.NDArray[np.float32]:
+    """Gains over their denominator, in float64 then float32 (0 when nothing is counted)."""
+    return (gains.astype(np.float64) / total if total else np.zeros(gains.shape)).astype(np.float32)
+
+
+def best_views(
+    gains: npt.ArrayLike, cases: npt.ArrayLike, width: int
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """(best view, views sharing its gain) of each row of ``gains`` (S, width) for the ``cases`` (S,)
+    masks: the largest gain outside the case, lowest index first (the authors' first-maximum loop);
+    (-1, 0) for a case of every view. The generator and every reader pick it here."""
+    values = np.asarray(gains, dtype=np.int64).reshape(-1, width)
+    outside = ~mask_bits(np.asarray(cases, dtype=np.uint64).reshape(-1), width)
+    candidates = np.where(outside, values, -1)
+    best = np.argmax(candidates, axis=1)
+    top = np.take_along_axis(candidates, best[:, None], axis=1)
+    ties = ((candidates == top) & outside).sum(axis=1)
+    none = ~outside.any(axis=1)
+    return np.where(none, -1, best).astype(np.int64), np.where(none, 0, ties).astype(np.int64)
 
 
 def bit_rows(masks: int | npt.ArrayLike, width: int) -> npt.NDArray[np.float32]:

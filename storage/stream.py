@@ -105,7 +105,8 @@ class ShardStream(IterableDataset[Batch]):
     """Batches of whole-shard reads, each a `storage.samples.SampleBatch` of tensors: ``points``,
     ``view_state``, ``label`` and ``index`` (dataset rows); for a version-2 dataset also ``marginals``
     and ``support``, and with ``covers=True`` the listed minimum covers padded to the batch's largest
-    listing (``covers``, ``cover_mask``).
+    listing (``covers``, ``cover_mask``); every registered sample field the dataset has (version 3:
+    ``view_gain``, ``coverage_gain``, ``best_view``), and the optional ones ``fields`` names (``grid``).
 
     Use it with ``DataLoader(stream, batch_size=None, num_workers=W)`` (`loader` builds one): the
     batches are made in the workers, so the DataLoader has nothing to collate. ``rows`` (dataset row
@@ -130,6 +131,7 @@ class ShardStream(IterableDataset[Batch]):
         read_ahead: int = 2,
         drop_last: bool = False,
         covers: bool = False,
+        fields: Sequence[str] = (),
         rank: int | None = None,
         world_size: int | None = None,
         num_workers: int | None = None,
@@ -157,7 +159,7 @@ class ShardStream(IterableDataset[Batch]):
         self.voxel_size = float(dataset.info.config.voxel_size)
         self.grid_offset = np.asarray(dataset.info.config.grid_offset, dtype=np.float64)
         self.ambiguous = dataset.has_ambiguity
-        self.field_names = [field.name for field in samples.fields_for(dataset.info.schema_version)]
+        self.field_names = [field.name for field in samples.fields_for(dataset.info.schema_version, fields)]
         """The registered `storage.samples.SampleField`s it reads (names: a worker looks them up)."""
         if covers and not self.ambiguous:
             raise ValueError(

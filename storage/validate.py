@@ -21,7 +21,13 @@ from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import (
     COVER_ROWS,
+    COVERAGE_GAINS,
     COVERS,
+    GAIN_DTYPE,
+    GAIN_TOTALS,
+    GRID_FRAME,
+    GRID_HITS,
+    GRID_MISSES,
     GT_KEYS,
     KEY_DTYPE,
     KEY_SETS,
@@ -30,6 +36,7 @@ from schemas.shard import (
     MASKS,
     OFFSET_DTYPE,
     TASK_SETS,
+    VIEW_GAINS,
     VIEW_STATE_COLUMN,
     array_names,
     keys_array,
@@ -39,6 +46,7 @@ from storage.covers import listed_problem, undominated, universe_rows
 from storage.dataset_info import read_info
 from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
 from storage.location import DamagedFile, Location, StorageError, open_location
+from storage.occupancy import PACKED_CELLS
 from storage.problems import Mend, Problem, lines
 from storage.shards import ShardReader
 from storage.store_errors import check_store
@@ -236,6 +244,8 @@ def _check_open_shard(
         ties_problem = judge.ties_problem
     if schema_version >= 2:
         yield from _check_covers(at, arrays, count, full_masks, rows, ties_problem)
+    if schema_version >= 3:
+        yield from _check_next_view(at, arrays, count, num_views, full_masks, rows)
     if shard_check is not None:
         shard_check(record, shard)
 
@@ -378,6 +388,53 @@ def _covers_problem(listed: npt.NDArray[np.uint64], case: int, label: int, rows:
         return None
 
     return listed_problem(listed, case, label, ("minimum cover", "minimum covers"), covering)
+
+
+def _check_next_view(
+    at: _Shard,
+    arrays: dict[str, npt.NDArray[Any]],
+    count: int,
+    num_views: int,
+    full_masks: npt.NDArray[np.uint64],
+    rows: npt.NDArray[np.int64],
+) -> Iterator[Problem]:
+    """Version 3: the arrays' shapes, both denominators, and each checked row's gains recounted from
+    the stored V_i and P_full. The grid's ray cells need the ray walk: `datagen shards validate --all`."""
+    expected = {
+        VIEW_GAINS: ((count, num_views), GAIN_DTYPE),
+        COVERAGE_GAINS: ((count, num_views), GAIN_DTYPE),
+        GAIN_TOTALS: ((2,), np.dtype(np.uint64)),
+        GRID_FRAME: ((4,), np.dtype(np.float64)),
+        GRID_HITS: ((num_views, PACKED_CELLS), np.dtype(np.uint8)),
+        GRID_MISSES: ((num_views, PACKED_CELLS), np.dtype(np.uint8)),
+    }
+    bad = False
+    for name, (shape, dtype) in expected.items():
+        array = arrays[name]
+        if array.shape != shape or array.dtype != dtype:
+            yield at("array", f"{name} has shape {array.shape} {array.dtype}, expected {shape} {dtype}", name)
+            bad = True
+    if bad:
+        return
+    frame = arrays[GRID_FRAME]
+    if not (np.isfinite(frame).all() and frame[3] > 0):
+        yield at("array", f"{GRID_FRAME} is not a finite corner and a positive cell size", GRID_FRAME)
+    if (np.unpackbits(arrays[GRID_HITS]) & np.unpackbits(arrays[GRID_MISSES])).any():
+        yield at("array", f"a cell is in both {GRID_HITS} and {GRID_MISSES} of one view", GRID_HITS)
+    seen = key_view_masks(_task_sets(arrays, "visible", num_views))
+    totals = (int(seen.size), int(full_masks.size))
+    if tuple(int(t) for t in arrays[GAIN_TOTALS]) != totals:
+        stored = tuple(int(t) for t in arrays[GAIN_TOTALS])
+        yield at("array", f"{GAIN_TOTALS} are {stored}, recounted {totals} (keys any view sees, |P_full|)", GAIN_TOTALS)
+        return
+    masks = arrays[MASKS]
+    for name, key_masks in ((VIEW_GAINS, seen), (COVERAGE_GAINS, full_masks)):
+        distinct, counts = np.unique(key_masks, return_counts=True)
+        bits = ((distinct[:, None] >> np.arange(num_views, dtype=np.uint64)) & np.uint64(1)).astype(np.int64)
+        for row in rows.tolist():
+            unseen = (distinct & masks[row, VIEW_STATE_COLUMN]) == 0
+            if not np.array_equal(counts[unseen] @ bits[unseen], arrays[name][row].astype(np.int64)):
+                yield at("gains", f"{name} differ from the gains recounted from the stored sets", name, f"row {row}")
 
 
 def _check_index(location: Location, commits: list[CommitRecord], schema_version: int | None) -> Iterator[Problem]:

@@ -8,6 +8,7 @@ Plain functions; `datagen.cli.shards` registers them.
 from __future__ import annotations
 
 import json
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
@@ -83,6 +84,32 @@ def ambiguity_rows(details: SampleDetails) -> list[tuple[str, str]]:
     ]
 
 
+def next_view_rows(details: SampleDetails) -> list[tuple[str, str]]:
+    """The next-view labels (version 3): the best view and the largest gains of both kinds."""
+    found = details.next_view
+    if found is None:
+        return []
+    if found.best_view < 0:
+        best = "none (the case has every view)"
+    else:
+        gain = int(found.view_gains[found.best_view])
+        share = gain / found.visible_size if found.visible_size else 0.0
+        unique = "unique" if found.best_view_ties == 1 else f"{found.best_view_ties} views tie"
+        best = f"view {found.best_view}: +{gain} keys, {share:.1%} of what any view sees ({unique})"
+    return [
+        ("best next view", best),
+        ("view gains", _top_gains(found.view_gains, found.visible_size, "of V")),
+        ("coverage gains", _top_gains(found.coverage_gains, found.full_size, "of P_full")),
+    ]
+
+
+def _top_gains(gains: Any, total: int, of: str, shown: int = 5) -> str:
+    """The ``shown`` largest gains as ``view:share``, largest first, lowest view among equals."""
+    order = sorted(range(len(gains)), key=lambda v: (-int(gains[v]), v))[:shown]
+    text = "  ".join(f"{v}:{int(gains[v]) / total:.1%}" if total else f"{v}:0" for v in order)
+    return f"{text}  (largest {shown}, share {of})"
+
+
 def _table(*headers: str, title: str | None = None) -> Table:
     table = Table(title=title, box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True, title_justify="left")
     for header in headers:
@@ -154,6 +181,7 @@ def sample_table(details: SampleDetails) -> Table:
         ("label views", f"{format_views(details.label_views)}  ({plural(len(details.label_views), 'view')})"),
         ("views", f"{view_strip(details)}  (I input, L label, a another minimum cover)"),
         *ambiguity_rows(details),
+        *next_view_rows(details),
         ("points", f"{details.points} refined P(O_S), {details.observed} observed keys(O_S)"),
         ("sets", f"|P_full| {meta['full_size']}, |U| {meta['universe_size']}"),
         ("solver", f"{meta['solver_status']}, proof {meta['solver_proof']}, objective {meta['solver_objective']}"),
@@ -226,6 +254,7 @@ def print_stats(stats: DatasetStats) -> None:
     console.print(spread)
     say("proofs: " + (", ".join(f"{kind} {count}" for kind, count in stats.solver_proofs.items()) or "none"))
     print_ambiguity(stats)
+    print_next_view(stats)
     for line in step_lines(stats.step_seconds):
         say(line)
 
@@ -256,6 +285,29 @@ def print_ambiguity(stats: DatasetStats) -> None:
     console.print(spread)
     if found.capped:
         say(f"{found.capped} labels have more {many} than the cap: their counts are lower bounds")
+
+
+def print_next_view(stats: DatasetStats) -> None:
+    """How often the best next view is unique, and how much it adds (version 3)."""
+    found = stats.next_view
+    if found is None:
+        say("next-view labels: not recorded (before schema 3; `datagen shards relabel URL --out URL2` adds them)")
+        return
+    table = _table("|S|", "unique best view", title="best next view")
+    for name, share in found.unique.items():
+        table.add_row(name, f"{share:.1%}")
+    console.print(table)
+    spread = _table("per sample", "p0", "p5", "p50", "p95", "p100")
+    spread.add_row("best gain share", *("-" if v is None else f"{v:.3f}" for v in found.best_gain_share.values()))
+    console.print(spread)
+    width = 1.0 / len(found.best_gain_histogram)
+    bins = "  ".join(f"{i * width:.1f}:{n}" for i, n in enumerate(found.best_gain_histogram))
+    for line in textwrap.wrap(f"best gain share histogram (bin start:samples): {bins}", 80):
+        say(line)
+    for line in textwrap.wrap("best view (view:samples): " + _histogram_text(found.best_view_counts), 80):
+        say(line)
+    if found.no_next_view:
+        say(f"{found.no_next_view} samples have every view (no next view)")
 
 
 def stats(

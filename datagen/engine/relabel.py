@@ -27,7 +27,7 @@ from datagen.engine.shard_payload import task_payload
 from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.setcover import TIE_BREAKS
-from datagen.pipeline.task import TaskResult, TaskSets, label_task, labelled_samples
+from datagen.pipeline.task import TaskResult, TaskSets, label_task, labelled_samples, next_view_labels
 from schemas.config import LABEL_OBJECTIVES, GenerationConfig, MissingConfigFile
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
@@ -134,7 +134,9 @@ def relabel_dataset(
     records = committed_tasks(source)
     samples = dropped = failed = 0
     for done, record in enumerate(records, start=1):
-        result = relabel_task(source, record, config, new_info.config_hash, info.config_hash)
+        result = relabel_task(
+            source, record, config, new_info.config_hash, info.config_hash, np.asarray(info.view_positions)
+        )
         write_task(target, task_payload(result, config), f"relabel-{uuid.uuid4().hex[:12]}")
         samples += len(result.samples)
         dropped += result.dropped_empty
@@ -163,9 +165,16 @@ def relabel_dataset(
 
 
 def relabel_task(
-    source: Location, record: CommitRecord, config: GenerationConfig, config_hash: str, source_hash: str
+    source: Location,
+    record: CommitRecord,
+    config: GenerationConfig,
+    config_hash: str,
+    source_hash: str,
+    positions: npt.NDArray[np.float64],
 ) -> TaskResult:
-    """One committed task of the source, its stored cases labelled for ``config.alpha``.
+    """One committed task of the source, its stored cases labelled for ``config.alpha``, with the
+    next-view labels computed from its visibility sets and the view ``positions`` (so a dataset of an
+    older schema version gains them).
 
     Only the cases the source stored can be relabelled: a case the source dropped (empty label) or
     failed to label has no stored points.
@@ -182,13 +191,15 @@ def relabel_task(
     masks = shard.array(MASKS)
     cases = [int(c) for c in masks[:, VIEW_STATE_COLUMN]]
     labelled = label_task(sets, cases, config)
+    views = next_view_labels(sets, labelled, positions, config)
     stored = zip(_key_sets(shard, "points", len(cases)), _key_sets(shard, "observed", len(cases)), strict=True)
     samples, dropped = labelled_samples(
-        attributes.task_id, cases, labelled, dict(zip(cases, stored, strict=True)), config
+        attributes.task_id, cases, labelled, dict(zip(cases, stored, strict=True)), config, views.gains
     )
     source_meta = attributes.metadata
     metadata: dict[str, object] = {name: source_meta[name] for name in TASK_METADATA if name in source_meta}
     metadata["config_hash"] = config_hash
+    metadata["schema_version"] = SCHEMA_VERSION
     metadata["relabelled_from"] = {
         "config_hash": source_hash,
         "attempt_id": attributes.attempt_id,
@@ -207,6 +218,8 @@ def relabel_task(
         metadata=metadata,
         cover_rows=labelled.cover.minimal,
         seconds={"label": time.perf_counter() - started},
+        grids=views.grids,
+        visible_size=views.gains.visible.total,
     )
 
 

@@ -13,10 +13,17 @@ from datagen.pipeline.task import TaskResult
 from schemas.config import GenerationConfig
 from schemas.shard import (
     COVER_ROWS,
+    COVERAGE_GAINS,
     COVERS,
+    GAIN_DTYPE,
+    GAIN_TOTALS,
+    GRID_FRAME,
+    GRID_HITS,
+    GRID_MISSES,
     GT_KEYS,
     MASK_DTYPE,
     OFFSET_DTYPE,
+    VIEW_GAINS,
     ShardAttributes,
     keys_array,
     offsets_array,
@@ -93,6 +100,8 @@ def task_payload(result: TaskResult, config: GenerationConfig, schema_version: i
     }
     if schema_version >= 2:
         _add_ambiguity(result, arrays, rows)
+    if schema_version >= 3:
+        _add_next_view(result, config, arrays, rows)
     return ShardPayload(attributes=attributes, arrays=arrays, index_rows=rows)
 
 
@@ -110,6 +119,29 @@ def _add_ambiguity(result: TaskResult, arrays: dict[str, npt.NDArray[Any]], rows
     rows["label_support"] = [a.support for a in ambiguities]
     rows["min_covers"] = [a.count for a in ambiguities]
     rows["min_covers_exact"] = [a.exact for a in ambiguities]
+
+
+def _add_next_view(
+    result: TaskResult, config: GenerationConfig, arrays: dict[str, npt.NDArray[Any]], rows: dict[str, list[Any]]
+) -> None:
+    """Version 3: every view's two gains with the task's denominators, the best next view, and each
+    view's cells of the occupancy grid."""
+    gains = [s.gains for s in result.samples]
+    found = [g for g in gains if g is not None]
+    if result.grids is None or len(found) != len(gains):
+        raise ValueError(f"task {result.task_id}: samples without next-view labels cannot make a version-3 shard")
+    views = config.num_views
+    arrays[VIEW_GAINS] = np.array([g.visible for g in found], dtype=GAIN_DTYPE).reshape(-1, views)
+    arrays[COVERAGE_GAINS] = np.array([g.coverage for g in found], dtype=GAIN_DTYPE).reshape(-1, views)
+    full_size = result.samples[0].full_size if result.samples else 0
+    arrays[GAIN_TOTALS] = np.array([result.visible_size, full_size], dtype=np.uint64)
+    arrays[GRID_FRAME] = result.grids.frame.as_array()
+    arrays[GRID_HITS] = result.grids.hits
+    arrays[GRID_MISSES] = result.grids.misses
+    rows["visible_size"] = [result.visible_size] * len(found)
+    rows["best_view"] = [g.best_view for g in found]
+    rows["best_view_ties"] = [g.best_view_ties for g in found]
+    rows["best_gain"] = [int(g.visible[g.best_view]) if g.best_view >= 0 else 0 for g in found]
 
 
 def _flatten(sets: Sequence[npt.NDArray[np.int64]]) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.int64]]:

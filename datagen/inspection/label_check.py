@@ -78,6 +78,7 @@ COVERS_WRONG = "covers"
 """A version-2 sample's minimum covers, their count or support differ from an enumeration of our own."""
 
 AMBIGUITY_COLUMNS = ("label_support", "min_covers", "min_covers_exact")
+NEXT_VIEW_COLUMNS = ("visible_size", "best_view", "best_view_ties", "best_gain")
 
 Progress = Callable[[int, int], None]
 """Called with (shards done, shards in all) after each shard."""
@@ -180,6 +181,7 @@ class ShardLabelCheck:
         self.tie_break = info.config.label_tie_break
         self.full, self.seed, self.search_limit = full, seed, search_limit
         self.index_rows = _index_rows(location, self.records)
+        self.positions = np.asarray(info.view_positions, dtype=np.float64)
         self.report = LabelReport(shards=len(self.records))
         self._lock = threading.Lock()
 
@@ -197,9 +199,28 @@ class ShardLabelCheck:
             self.tie_break,
             self.config,
         )
+        if self.full and shard.attributes.schema_version >= 3:
+            problems += self._next_view(record, shard)
         with self._lock:
             self.report.problems.extend(problems)
             self.report.checked += checked
+
+    def _next_view(self, record: CommitRecord, shard: ShardReader) -> list[LabelProblem]:
+        """The grid walked again and the index's best views (version 3, ``--all`` only)."""
+        from datagen.inspection.next_view_check import next_view_problems
+
+        count = shard.attributes.num_samples
+        indexed = [getattr(self.index_rows.get((record.shard, row)), "next_view", None) for row in range(count)]
+        try:
+            found = next_view_problems(shard, self.config, self.positions, indexed)
+        except Exception as exc:  # storage.validate names the damage; here it only stops these checks
+            return [
+                LabelProblem(record.shard, None, UNREADABLE, f"{record.shard}: cannot check the grid ({_why(exc)})")
+            ]
+        return [
+            LabelProblem(record.shard, row, kind, f"{record.shard}{'' if row is None else f' row {row}'}: {text}")
+            for row, kind, text in found
+        ]
 
     def finish(self) -> LabelReport:
         self.report.problems.sort(key=lambda p: (p.shard, -1 if p.row is None else p.row, p.kind, p.line))
@@ -214,6 +235,8 @@ class IndexRow:
     label: int
     ambiguity: tuple[int, int, bool] | None
     """(support, count of minimum covers, whether the count is exact) in a version-2 index."""
+    next_view: tuple[int, int, int, int] | None = None
+    """(visible size, best view, views sharing its gain, that gain) in a version-3 index."""
 
 
 def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tuple[str, int], IndexRow]:
@@ -229,9 +252,13 @@ def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tup
         ambiguity: list[tuple[int, int, bool] | None] = [(int(a), int(b), bool(c)) for a, b, c in found]
     else:
         ambiguity = [None] * len(names)
+    next_view: list[tuple[int, int, int, int] | None] = [None] * len(names)
+    if "best_view" in index.column_names:
+        found_views = zip(*(index.column(c).to_pylist() for c in NEXT_VIEW_COLUMNS), strict=True)
+        next_view = [(int(a), int(b), int(c), int(d)) for a, b, c, d in found_views]
     return {
-        (s, r): IndexRow(n, int(label), a)
-        for s, r, n, label, a in zip(shards, rows, names, labels, ambiguity, strict=True)
+        (s, r): IndexRow(n, int(label), a, v)
+        for s, r, n, label, a, v in zip(shards, rows, names, labels, ambiguity, next_view, strict=True)
     }
 
 

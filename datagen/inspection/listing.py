@@ -14,7 +14,7 @@ import numpy as np
 import pyarrow.compute as pc
 
 from datagen.errors import InvalidArgument
-from storage import Dataset, LabelAmbiguity, committed_tasks, stored_bytes
+from storage import Dataset, LabelAmbiguity, NextView, committed_tasks, stored_bytes
 from storage.samples import mask_bits
 
 COMMITTED = "committed"
@@ -139,6 +139,8 @@ class SampleDetails:
     """Keys of the observed cloud keys(O_S) stored in the shard."""
     ambiguity: LabelAmbiguity | None = None
     """The label's minimum covers, count and support (version-2 datasets)."""
+    next_view: NextView | None = None
+    """The gains and best next view (version-3 datasets)."""
 
 
 def find_sample(dataset: Dataset, text: str) -> int:
@@ -172,4 +174,5 @@ def describe_sample(dataset: Dataset, row: int) -> SampleDetails:
         points=len(dataset.keys(row, "points")),
         observed=len(dataset.keys(row, "observed")),
         ambiguity=dataset.ambiguity(row) if dataset.has_ambiguity else None,
+        next_view=dataset.next_view(row) if dataset.has_next_view else None,
     )

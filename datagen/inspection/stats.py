@@ -67,6 +67,8 @@ class DatasetStats:
     """CPU and wall seconds per task step summed over the commit records that carry them."""
     objective: str = "cover"
     """What the labels are (`GenerationConfig.objective_text`: the objective and its parameter)."""
+    next_view: NextViewStats | None = None
+    """The next-view labels (None before schema version 3)."""
 
     def to_json(self) -> dict[str, Any]:
         """Plain dicts, lists and numbers (integer keys written as strings, as JSON requires)."""
@@ -94,7 +96,61 @@ class DatasetStats:
                 for f in self.failed
             ],
             "step_seconds": self.step_seconds.to_json() if self.step_seconds.tasks else None,
+            "next_view": None if self.next_view is None else self.next_view.to_json(),
         }
+
+
+GAIN_BINS = 10
+"""Bins of the best-gain histogram over [0, 1] (the best view's share of what any view sees)."""
+
+
+@dataclass(frozen=True)
+class NextViewStats:
+    """The next-view labels (version 3) from the index: how often the best next view is unique, how
+    much it adds, and which views are best how often."""
+
+    unique: dict[str, float]
+    """Case size (and ``all``) -> share of samples with a next view whose best view is unique."""
+    best_gain_share: dict[str, float | None]
+    """Percentiles of the best view's gain over the keys any view sees."""
+    best_gain_histogram: list[int]
+    """Samples per `GAIN_BINS` equal bins of that share over [0, 1]."""
+    best_view_counts: dict[int, int]
+    """View -> samples whose best next view it is (sorted by view)."""
+    no_next_view: int
+    """Samples whose case has every view."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "unique": dict(self.unique),
+            "best_gain_share": dict(self.best_gain_share),
+            "best_gain_histogram": list(self.best_gain_histogram),
+            "best_view_counts": {str(k): v for k, v in self.best_view_counts.items()},
+            "no_next_view": self.no_next_view,
+        }
+
+
+def next_view_stats(dataset: Dataset) -> NextViewStats | None:
+    """`NextViewStats` from the index alone; None for a dataset without them."""
+    index = dataset.index
+    if "best_view" not in index.column_names:
+        return None
+    best = index.column("best_view").to_numpy().astype(np.int64)
+    has_next = best >= 0
+    ties = index.column("best_view_ties").to_numpy()[has_next]
+    sizes = index.column("case_size").to_numpy()[has_next]
+    visible = index.column("visible_size").to_numpy()[has_next].astype(np.float64)
+    gains = index.column("best_gain").to_numpy()[has_next].astype(np.float64)
+    share = np.divide(gains, visible, out=np.zeros_like(gains), where=visible > 0)
+    groups = {str(int(size)): ties[sizes == size] for size in np.unique(sizes)} | {"all": ties}
+    histogram, _ = np.histogram(share, bins=GAIN_BINS, range=(0.0, 1.0))
+    return NextViewStats(
+        unique={name: float(np.mean(found == 1)) for name, found in groups.items() if found.size},
+        best_gain_share=percentiles(share),
+        best_gain_histogram=[int(count) for count in histogram],
+        best_view_counts={int(k): v for k, v in _sorted_counts(best[has_next].tolist()).items()},
+        no_next_view=int(np.count_nonzero(~has_next)),
+    )
 
 
 @dataclass(frozen=True)
@@ -188,4 +244,5 @@ def dataset_stats(dataset: Dataset) -> DatasetStats:
         solver_seconds=seconds,
         step_seconds=step_totals(records),
         objective=dataset.info.config.objective_text(),
+        next_view=next_view_stats(dataset),
     )

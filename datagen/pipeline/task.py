@@ -2,9 +2,10 @@
 
 `run_task` composes the pure steps: scan (P_gt and the n observations), refine every single view,
 filter to P_full and coverage masks, draw the long-tail cases from the visibility sets, refine
-every multi-view case, and label each case with its exact minimum cover. It also returns the
-per-task sets (V_i, P_i, P_gt) that `relabel` needs to label the same cases for another alpha
-without re-imaging or re-refining.
+every multi-view case, label each case with its exact minimum cover, and add the next-best-view
+labels (every view's gain, the best next view) and each view's cells of the occupancy grid. It also
+returns the per-task sets (V_i, P_i, P_gt) that `relabel` needs to label the same cases for another
+alpha without re-imaging or re-refining.
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ from datagen.pipeline.cases import long_tail_cases
 from datagen.pipeline.coverage import Coverage, coverage_table, filter_to_ground_truth
 from datagen.pipeline.imaging import Observation, TaskImaging
 from datagen.pipeline.keys import key_centres, unpack_keys
+from datagen.pipeline.next_view import CaseGains, TaskGains
 from datagen.pipeline.objectives import CaseLabeller, cover_solver, task_labeller
 from datagen.pipeline.objects.prepare import PreparedObject
+from datagen.pipeline.occupancy import ViewGrids, view_grids
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import Refiner, RefineRequest, refined_keys
 from datagen.pipeline.scanning import scan_task
@@ -62,6 +65,8 @@ class Sample:
     universe_size: int
     cover: CoverResult
     empty_label: bool
+    gains: CaseGains | None = None
+    """Every view's gain and the best next view (schema version 3)."""
 
     def point_centres(self, config: GenerationConfig) -> npt.NDArray[np.float32]:
         return key_centres(unpack_keys(self.points), config.voxel_size, config.grid_offset).astype(np.float32)
@@ -91,6 +96,10 @@ class TaskResult:
     """The undominated masks of P_full: every case's set-cover rows are those its views miss."""
     seconds: dict[str, float] = field(default_factory=dict)
     """Coarse wall seconds (scan, refine, label); `run_task`'s clock has them per step."""
+    grids: ViewGrids | None = None
+    """Each view's cells of the occupancy grid (schema version 3)."""
+    visible_size: int = 0
+    """Keys any view sees: the visibility gains' denominator."""
 
 
 def sample_id(task_id: str, case: int) -> str:
@@ -175,12 +184,14 @@ def run_task(
         inputs = case_inputs(views, cases, refiner, config, spec.object_id, rotation)
 
     labelled = label_task(sets, cases, config, threads, clock)
+    with clock.step("next_view"):
+        views_of_task = next_view_labels(sets, labelled, view_space.positions, config)
     with clock.step("labels"):
-        samples, dropped = labelled_samples(task_id, cases, labelled, inputs, config)
+        samples, dropped = labelled_samples(task_id, cases, labelled, inputs, config, views_of_task.gains)
     timings = {
         "scan": clock.wall_of("ground_truth", "imaging"),
         "refine": clock.wall_of("refine_views", "cases", "refine_cases"),
-        "label": clock.wall_of("coverage", "labels"),
+        "label": clock.wall_of("coverage", "labels", "next_view"),
     }
     return TaskResult(
         task_id=task_id,
@@ -195,6 +206,8 @@ def run_task(
         metadata=task_metadata(config, refiner),
         cover_rows=labelled.cover.minimal,
         seconds=timings,
+        grids=views_of_task.grids,
+        visible_size=views_of_task.gains.visible.total,
     )
 
 
@@ -225,15 +238,37 @@ def label_task(
     return TaskLabels(coverage, cover, labels, failures)
 
 
+@dataclass(frozen=True)
+class NextViewLabels:
+    """What the next-best-view families train on, per task: the counts every case's gains come from
+    and each view's cells of the occupancy grid."""
+
+    gains: TaskGains
+    grids: ViewGrids
+
+
+def next_view_labels(
+    sets: TaskSets, labelled: TaskLabels, positions: npt.NDArray[np.float64], config: GenerationConfig
+) -> NextViewLabels:
+    """The next-view labels of a task from its stored sets and the view positions alone: what
+    generation, `relabel` and `datagen shards validate --all` share (docs/pipeline.md section 8)."""
+    return NextViewLabels(
+        gains=TaskGains.of(sets.visible, labelled.coverage.masks),
+        grids=view_grids(sets.visible, sets.ground_truth, positions, config.voxel_size, config.grid_offset),
+    )
+
+
 def labelled_samples(
     task_id: str,
     cases: Sequence[int],
     labelled: TaskLabels,
     inputs: Mapping[int, tuple[PackedKeys, PackedKeys]],
     config: GenerationConfig,
+    gains: TaskGains | None = None,
 ) -> tuple[list[Sample], int]:
     """The task's samples in case order (cases without a label skipped) and how many empty
-    labels ``empty_labels = "drop"`` dropped; ``inputs`` maps a case to (P(O_S), keys(O_S))."""
+    labels ``empty_labels = "drop"`` dropped; ``inputs`` maps a case to (P(O_S), keys(O_S)); with
+    ``gains``, each sample carries its next-view labels."""
     samples, dropped = [], 0
     for case in cases:
         cover = labelled.labels.get(case)
@@ -255,6 +290,7 @@ def labelled_samples(
                 universe_size=cover.rows_before,
                 cover=cover,
                 empty_label=empty,
+                gains=None if gains is None else gains.case(case),
             )
         )
     return samples, dropped

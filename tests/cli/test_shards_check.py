@@ -40,6 +40,7 @@ from datagen.pipeline.task import sample_id
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
+from schemas.version import SCHEMA_VERSION
 from storage import StorageError, committed_tasks, open_dataset, open_location, read_failures
 from storage.covers import mask_views
 from storage.shards import KEY_CHUNK_ROWS, ShardReader
@@ -500,17 +501,20 @@ def test_relabel_to_another_alpha_validates(engine_dataset: EngineDataset, tmp_p
     assert len(read_failures(open_location(out))) == engine_dataset.failed_tasks
 
 
-def test_relabel_adds_the_covers_to_a_version_1_dataset(tmp_path: Path) -> None:
-    """Relabelling a version-1 dataset at its own alpha gives exactly a fresh version-2 generation of the
-    same tasks: same samples and labels, and every minimum cover, count, support and cover row."""
+@pytest.mark.parametrize("version", [1, 2])
+def test_relabel_brings_an_older_dataset_to_a_fresh_generation(tmp_path: Path, version: int) -> None:
+    """Relabelling a version-1 or version-2 dataset at its own alpha gives exactly a fresh generation of
+    the same tasks in the newest layout: same samples and labels, every minimum cover, count, support
+    and cover row (version 2), every view's gains, best next view and occupancy grid (version 3)."""
     from support import storage as fx
 
-    old, fresh, out = tmp_path / "v1", tmp_path / "v2", tmp_path / "relabelled"
-    fx.build_dataset(str(old), finalise_index=True, schema_version=1)
+    old, fresh, out = tmp_path / "old", tmp_path / "fresh", tmp_path / "relabelled"
+    fx.build_dataset(str(old), finalise_index=True, schema_version=version)
     fx.build_dataset(str(fresh), finalise_index=True)
     result = shards("relabel", str(old), "--out", str(out))
     assert result.exit_code == 0, result.output
-    assert info_of(str(out)).schema_version == 2 and info_of(str(out)).config_hash == info_of(str(old)).config_hash
+    assert info_of(str(out)).schema_version == SCHEMA_VERSION
+    assert info_of(str(out)).config_hash == info_of(str(old)).config_hash
     assert assert_same_samples(str(out), str(fresh)) == len(open_dataset(str(fresh)))
     checked = shards("validate", str(out), "--all")
     assert checked.exit_code == 0, checked.output

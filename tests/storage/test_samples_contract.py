@@ -18,6 +18,7 @@ from support.torch_data import Built, cached_dataset
 
 from datagen.pipeline.keys import key_centres as pipeline_centres
 from schemas.shard import LABEL_COLUMN, MASKS
+from schemas.version import SCHEMA_VERSION
 from storage import open_dataset
 from storage.memory import load_memory
 from storage.samples import (
@@ -251,7 +252,7 @@ def test_a_side_loaded_alone_is_that_side_of_a_whole_load(small: Built) -> None:
 def test_memory_holds_what_the_reader_serves_with_the_covers(covered: Path) -> None:
     dataset = open_dataset(str(covered))
     memory = load_memory(str(covered))
-    assert (memory.schema_version, memory.num_views, len(memory)) == (2, dataset.num_views, len(dataset))
+    assert (memory.schema_version, memory.num_views, len(memory)) == (SCHEMA_VERSION, dataset.num_views, len(dataset))
     assert memory.voxel_size == dataset.info.config.voxel_size
     assert memory.grid_offset.tolist() == list(dataset.info.config.grid_offset)
     packed = memory.covers

@@ -27,7 +27,7 @@ def version_1(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope="module")
 def version_2(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("v2") / "ds"
-    fx.build_dataset(str(root), finalise_index=True)
+    fx.build_dataset(str(root), finalise_index=True, schema_version=2)
     return root
 
 
@@ -104,9 +104,9 @@ def test_nearest_cover_shares_most_views() -> None:
 
 def test_an_unknown_schema_version_is_one_line(ds: Path) -> None:
     info = json.loads((ds / "dataset.json").read_text())
-    info["schema_version"] = 3
+    info["schema_version"] = 99
     (ds / "dataset.json").write_text(json.dumps(info))
-    with pytest.raises(StorageError, match=r"schema version 3; this reader knows 1, 2: upgrade datagen"):
+    with pytest.raises(StorageError, match=r"schema version 99; this reader knows 1, 2, 3: upgrade datagen"):
         open_dataset(str(ds))
 
 
@@ -177,7 +177,7 @@ def test_a_version_1_shard_in_a_version_2_dataset(tmp_path: Path) -> None:
     root = tmp_path / "mixed"
     v1_first = next(p for p in fx.payloads(1) if p.attributes.task_id == FIRST)
     v2_rest = [p for p in fx.payloads(2) if p.attributes.task_id != FIRST]
-    fx.build_dataset(str(root), [v1_first, *v2_rest])
+    fx.build_dataset(str(root), [v1_first, *v2_rest], schema_version=2)
     found = validate(str(root), full=True)
     assert f"{SHARD}: schema version 1, the dataset is version 2" in found
 
