@@ -15,6 +15,8 @@ Everything here is inference-side: it imports the pipeline and torch, never trai
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -140,9 +142,34 @@ def forward_logits(
 ) -> Tensor:
     """Logits (B, 2, M) of the queries in one differentiable forward (training, test-time fine-tuning;
     ``fast=False``: the encoder's original operations, `PocoModel.encode`)."""
-    points, features, tables, queries = _on_device(model, points, directions, queries, generator, device, knn_backend)
-    logits: Tensor = model(points, features, tables, queries, tables["proj_indices"], fast=fast)
+    with exact_float32(device):
+        points, features, tables, queries = _on_device(
+            model, points, directions, queries, generator, device, knn_backend
+        )
+        logits: Tensor = model(points, features, tables, queries, tables["proj_indices"], fast=fast)
     return logits
+
+
+@contextmanager
+def exact_float32(device: torch.device | str) -> Iterator[None]:
+    """TF32 off while a CUDA device runs the network (a no-op elsewhere). cuDNN's convolutions use TF32
+    by default, which moved 0.03-0.4 % of R(O)'s keys and 2 of 327 labels away from the CPU's on an
+    H200; with it off, every R(O) and label equalled the CPU's
+    (benchmarks/generation/results/gpu-check.md). The flags are restored on the way out."""
+    if torch.device(device).type != "cuda":
+        yield
+        return
+    cudnn = torch.backends.cudnn
+    matmul = torch.backends.cuda.matmul
+    with cudnn.flags(
+        enabled=cudnn.enabled, benchmark=cudnn.benchmark, deterministic=cudnn.deterministic, allow_tf32=False
+    ):
+        before = matmul.allow_tf32
+        matmul.allow_tf32 = False
+        try:
+            yield
+        finally:
+            matmul.allow_tf32 = before
 
 
 def predict_probs(
@@ -168,7 +195,7 @@ def predict_probs(
         return np.zeros(0, dtype=np.float32)
     pick = choose_inputs(inputs.shape[0], model.preset.num_input_points, rng)
     points, dirs, q = network_tensors(inputs[pick], directions[pick], queries)
-    with torch.inference_mode() if fast else torch.no_grad():
+    with torch.inference_mode() if fast else torch.no_grad(), exact_float32(device):
         points, features, tables, q = _on_device(model, points, dirs, q, generator, device, knn_backend)
         latents = model.encode(points, features, tables, fast)
         if fast:
