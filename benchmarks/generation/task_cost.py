@@ -67,6 +67,7 @@ import numpy.typing as npt  # noqa: E402
 from datagen.config_io import load_config  # noqa: E402
 from datagen.engine.shard_payload import task_payload  # noqa: E402
 from datagen.pipeline import raycast  # noqa: E402
+from datagen.pipeline.keys import key_centres, unpack_keys  # noqa: E402
 from datagen.pipeline.objects.objects_file import read_objects_file  # noqa: E402
 from datagen.pipeline.objects.prepare import load_mesh, prepare_object  # noqa: E402
 from datagen.pipeline.objects.spec import ObjectSpec  # noqa: E402
@@ -100,6 +101,8 @@ FLOOR_NOTES = {
     "refine_cases": "as refine_views, on the multi-view cases",
     "coverage": "one sort of the refined keys; the rest is the masks",
     "labels": "one HiGHS MIP per reduced case; the pipeline adds the tie-break and lists every minimum cover",
+    "next_view": "one sort of the visible keys (the gains' masks) and each ray's end cell; the rest is the ray "
+    "walk through the grid and the per-case counts",
     "write": "one write + fsync of the same bytes; the rest is Zarr's chunking/compression and Parquet",
 }
 
@@ -418,6 +421,15 @@ def unique_floor(key_sets: Sequence[npt.NDArray[np.int64]], repeats: int = 3) ->
     return best_cpu(lambda: np.unique(everything), repeats)
 
 
+def next_view_floor(result: TaskResult, config: GenerationConfig, repeats: int = 3) -> float:
+    """One `np.unique` of the visible key sets (the gains' view masks) and the grid cell of every visible
+    key centre (where each ray ends): what the next-view labels cannot do without."""
+    everything = np.concatenate(list(result.sets.visible)) if result.sets.visible else np.empty(0, dtype=np.int64)
+    centres = key_centres(unpack_keys(everything), config.voxel_size, config.grid_offset)
+    cell = result.grids.frame.cell if result.grids is not None else config.voxel_size
+    return best_cpu(lambda: (np.unique(everything), np.floor(centres / cell).astype(np.int64)), repeats)
+
+
 def reduced_instances(minimal: npt.NDArray[np.uint64], cases: Sequence[int]) -> list[npt.NDArray[np.uint64]]:
     """Each case's reduced rows: the undominated masks that miss it, rows hit by forced views removed."""
     instances = []
@@ -614,6 +626,7 @@ def _floors(
     floors["coverage"] = unique_floor(result.sets.refined, repeats)
     instances = reduced_instances(result.cover_rows, result.cases)
     floors["labels"], found.highs_limited = highs_floor(instances, repeats=repeats)
+    floors["next_view"] = next_view_floor(result, config, repeats)
     return floors
 
 
