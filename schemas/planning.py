@@ -9,6 +9,11 @@ A planner package registers a `ScorerFactory` in the entry-point group `PLANNER_
     [project.entry-points."datagen.planners"]
     osvp = "osvp.planning:load_scorer"
 
+A factory returns one of two kinds of planner, told apart by the method it has: a one-shot
+`ViewScorer` (``view_probabilities``: a cloud and view state in, one probability per view out; its
+views are taken at once) or a next-best-view `NextViewScorer` (``next_view_scores``: asked again after
+every view with what has been observed so far, its best unvisited view is visited next).
+
 ``datagen evaluate --planner NAME:ARG`` (or ``NAME+DECODING:ARG``) then calls the factory of entry
 point NAME with ARG, the text after the first ``:`` (a checkpoint path, say), once per process, and
 plans with the scorer it returns. NAME must not be a built-in planner (oracle, greedy, random, all).
@@ -19,12 +24,20 @@ for an argument it cannot use (a missing or damaged checkpoint); ``datagen`` pri
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["PLANNER_ENTRY_POINTS", "DecodingScorer", "ScorerFactory", "ViewScorer"]
+__all__ = [
+    "PLANNER_ENTRY_POINTS",
+    "DecodingScorer",
+    "NextViewObservation",
+    "NextViewScorer",
+    "ScorerFactory",
+    "ViewScorer",
+]
 
 PLANNER_ENTRY_POINTS = "datagen.planners"
 """The entry-point group a planner package registers its `ScorerFactory` in, under the planner's NAME."""
@@ -64,5 +77,34 @@ class DecodingScorer(ViewScorer, Protocol):
         ...
 
 
-ScorerFactory = Callable[[str], ViewScorer]
+@dataclass(frozen=True)
+class NextViewObservation:
+    """What a next-best-view planner has observed after the views taken so far (the initial one first)."""
+
+    views: tuple[int, ...]
+    """The views taken, in the order visited."""
+    view_state: npt.NDArray[np.float32]
+    """(n,) 1 for the views taken."""
+    cloud: npt.NDArray[np.float32]
+    """(N, 3) the accumulated cloud: every surface point the views taken hit, metres, task frame."""
+    grid: npt.NDArray[np.float32] | None
+    """(32, 32, 32) occupancy probabilities of the views taken, indexed [x, y, z], 0.5 unknown
+    (docs/pipeline.md section 8.2); None for a scorer whose ``uses_grid`` is False."""
+
+
+@runtime_checkable
+class NextViewScorer(Protocol):
+    """A next-best-view network (PCNBV, NBVNet and the like), asked after every view.
+
+    ``next_view_scores`` gives one score per candidate view, higher is better (a predicted gain or a
+    class probability). The open view with the highest score is visited next, the lowest index among
+    equals; when every open view scores 0 or less the scorer says nothing is left, and play stops
+    unless a view count was asked for. A scorer that reads no grid may set ``uses_grid = False`` to
+    spare building it.
+    """
+
+    def next_view_scores(self, observation: NextViewObservation) -> npt.NDArray[np.float64]: ...
+
+
+ScorerFactory = Callable[[str], ViewScorer | NextViewScorer]
 """What a ``datagen.planners`` entry point loads: ARG of ``--planner NAME:ARG`` in, a scorer out."""

@@ -48,13 +48,19 @@ def case_log_odds(hits: npt.NDArray[np.uint8], misses: npt.NDArray[np.uint8], ca
     remaining = int(case)
     while remaining:
         if remaining & 1:
-            missed = unpack_cells(misses[view])
-            value[missed] = np.maximum(value[missed] + MISS_LOG_ODDS, MIN_LOG_ODDS)
-            hit = unpack_cells(hits[view])
-            value[hit] = np.minimum(value[hit] + HIT_LOG_ODDS, MAX_LOG_ODDS)
+            insert_view(value, hits[view], misses[view])
         remaining >>= 1
         view += 1
     return value
+
+
+def insert_view(value: npt.NDArray[np.float32], hits: npt.NDArray[np.uint8], misses: npt.NDArray[np.uint8]) -> None:
+    """Insert one view, given its packed ``hits`` and ``misses`` (PACKED_CELLS,), into the log-odds
+    ``value`` in place: OctoMap's miss and hit updates, each clamped."""
+    missed = unpack_cells(misses)
+    value[missed] = np.maximum(value[missed] + MISS_LOG_ODDS, MIN_LOG_ODDS)
+    hit = unpack_cells(hits)
+    value[hit] = np.minimum(value[hit] + HIT_LOG_ODDS, MAX_LOG_ODDS)
 
 
 def occupancy(log_odds: npt.NDArray[np.float32]) -> npt.NDArray[np.float64]:

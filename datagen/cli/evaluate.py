@@ -38,11 +38,15 @@ def evaluate(
             "-p",
             help=(
                 "oracle, oracle:SETTING=V[,..] (label settings alpha, objective, budget, tau), greedy, "
-                "greedy:K, random, random:K, fixed, fixed:K (the best constant views of --fixed-from), spread, "
-                "spread:K (views far apart, no data), KIND:match=PLANNER (random, fixed or spread with as many "
+                "greedy:K, gain, gain:K (next-best-view play with the true gains: greedy's views, asked again "
+                "after every view), random, random:K, fixed, fixed:K (the best constant views of --fixed-from), "
+                "spread, spread:K (views far apart, no data), KIND:match=PLANNER (random, fixed or spread with as many "
                 "views as PLANNER, run by run), all, or NAME:ARG / NAME+DECODING:ARG of a planner plugin (entry "
-                f"point group {PLANNER_ENTRY_POINTS}, e.g. osvp:CHECKPOINT; installed: {_installed_plugins()}); "
-                "repeat for several."
+                f"point group {PLANNER_ENTRY_POINTS}, e.g. osvp:CHECKPOINT; installed: {_installed_plugins()}). "
+                "A plugin's scorer is played one-shot (its views taken at once) or, when it is a next-best-view "
+                "scorer, step by step: asked again after every view with the cloud, occupancy grid and view "
+                "state observed so far, visiting its best open view, for 10 views in all or --budget-views K, "
+                "or until every open view scores 0. Repeat for several."
             ),
         ),
     ],
@@ -58,7 +62,11 @@ def evaluate(
         str, typer.Option("--rotations", help="Rotations of each object: 'all', '0,4' or '0-7'.")
     ] = "0",
     budget_views: Annotated[
-        int | None, typer.Option("--budget-views", help="Most views per run, the initial view included.")
+        int | None,
+        typer.Option(
+            "--budget-views",
+            help="Most views per run, the initial view included; a next-best-view planner plays exactly this many.",
+        ),
     ] = None,
     budget_moves: Annotated[float | None, typer.Option("--budget-moves", help="Most movement per run, metres.")] = None,
     per_object: Annotated[bool, typer.Option("--per-object", help="Also print one row per object.")] = False,

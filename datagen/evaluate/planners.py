@@ -12,6 +12,8 @@ probabilities into views its own way (a named decoding). Baselines:
   so one evaluation compares label objectives;
 - ``greedy`` / ``greedy:K``: next-best view by true new surface, one view at a time, until no view
   adds surface (or K views in all, the initial one included): the search-based NBV bound;
+- ``gain`` / ``gain:K``: the same played as a next-best-view planner (`datagen.evaluate.sequential`)
+  with the true gains as its scorer: asked after every view, 10 views in all by default;
 - ``random`` / ``random:K``: seeded uniform views, as many as the oracle's (or K in all);
 - ``fixed`` / ``fixed:K``: the best constant view set of that size, chosen once from a training
   dataset (``--fixed-from``, `datagen.evaluate.fixed`): the floor a planner that looks at the object
@@ -24,9 +26,10 @@ probabilities into views its own way (a named decoding). Baselines:
 
 Any other ``NAME:ARG`` is a planner plugin: the `schemas.planning.ScorerFactory` an installed distribution
 registers as entry point NAME in the group ``datagen.planners`` (`PLANNER_ENTRY_POINTS`), imported only
-when asked for and called with ARG once per process (`plugin_scorer`); ``NAME+DECODE:ARG`` plans with the
-scorer's decoding DECODE instead of its default. The `osvp` training package is one such plugin:
-``osvp:FILE`` loads an `osvp train` checkpoint.
+when asked for and called with ARG once per process (`plugin_scorer`); a one-shot `ViewScorer` is
+wrapped by `ScoredPlanner`, a `NextViewScorer` played step by step by `SequentialPlanner`;
+``NAME+DECODE:ARG`` plans with the scorer's decoding DECODE instead of its default. The `osvp`
+training package is one such plugin: ``osvp:FILE`` loads an `osvp train` checkpoint.
 """
 
 from __future__ import annotations
@@ -45,7 +48,7 @@ from datagen.evaluate.fixed import FIXED_OPTION, FixedPlans, spread_views
 from datagen.evaluate.situation import Situation, needs_refinement
 from datagen.pipeline.setcover import mask_to_views
 from schemas.config import GenerationConfig
-from schemas.planning import PLANNER_ENTRY_POINTS, DecodingScorer, ScorerFactory, ViewScorer
+from schemas.planning import PLANNER_ENTRY_POINTS, DecodingScorer, NextViewScorer, ScorerFactory, ViewScorer
 
 CHOICE_THRESHOLD = 0.5
 """A view is chosen when its probability exceeds this (the paper's rule)."""
@@ -64,6 +67,8 @@ class PlannerContext:
 
     config: GenerationConfig = field(default_factory=GenerationConfig)
     fixed: FixedPlans | None = None
+    budget_views: int | None = None
+    """``--budget-views``: how many views in all a next-best-view planner plays (default 10)."""
 
 
 MATCH_PREFIX = "match="
@@ -343,18 +348,18 @@ def _check_decoding(name: str, scorer: ViewScorer, decoding: str | None) -> None
         raise PlannerError(f"planner {name!r}: unknown decoding {decoding!r}; choose {', '.join(accepted)}")
 
 
-_SCORERS: dict[tuple[EntryPoint, str], ViewScorer] = {}
+_SCORERS: dict[tuple[EntryPoint, str], ViewScorer | NextViewScorer] = {}
 """The scorers built in this process, by plugin and argument (`plugin_scorer`)."""
 
 
-def plugin_scorer(plugin: EntryPoint, argument: str, spec: str) -> ViewScorer:
+def plugin_scorer(plugin: EntryPoint, argument: str, spec: str) -> ViewScorer | NextViewScorer:
     """The scorer a planner plugin's factory builds for ARGUMENT (``spec`` names the planner in errors).
 
     Built once per process and plugin and argument, however many objects and situations ask (a
     checkpoint is read once, not once per object): a file changed under the same path in the same
     process is not read again. Every failure is one `PlannerError` line: a plugin that cannot be
     imported (naming its distribution), an argument its factory refuses (its `DatagenError` goes
-    through as it is), or a factory that returns no `ViewScorer`.
+    through as it is), or a factory that returns neither a `ViewScorer` nor a `NextViewScorer`.
     """
     key = (plugin, argument)
     if key not in _SCORERS:
@@ -362,30 +367,31 @@ def plugin_scorer(plugin: EntryPoint, argument: str, spec: str) -> ViewScorer:
     return _SCORERS[key]
 
 
-def _build_scorer(plugin: EntryPoint, argument: str, spec: str) -> ViewScorer:
+def _build_scorer(plugin: EntryPoint, argument: str, spec: str) -> ViewScorer | NextViewScorer:
     dist = plugin.dist
     source = f"distribution {dist.name} {dist.version}" if dist is not None else "its distribution"
     try:
         factory: ScorerFactory = plugin.load()
     except Exception as exc:  # any import-time failure of third-party code: one line, not a traceback
         raise PlannerError(
-            f"planner plugin {plugin.name!r} ({plugin.value}, {source}) cannot be imported: {_one_line(exc)}"
+            f"planner plugin {plugin.name!r} ({plugin.value}, {source}) cannot be imported: {one_line(exc)}"
         ) from None
     try:
         scorer = factory(argument)
     except DatagenError:
         raise
     except (ValueError, OSError) as exc:
-        raise PlannerError(f"planner {spec!r}: {_one_line(exc, named=False)}") from None
-    if not isinstance(scorer, ViewScorer):
+        raise PlannerError(f"planner {spec!r}: {one_line(exc, named=False)}") from None
+    if not isinstance(scorer, ViewScorer | NextViewScorer):
         raise PlannerError(
             f"planner {spec!r}: plugin {plugin.name!r} ({plugin.value}, {source}) returned a "
-            f"{type(scorer).__name__}, not a scorer with view_probabilities(points, view_state)"
+            f"{type(scorer).__name__}, not a scorer with view_probabilities(points, view_state) or "
+            "next_view_scores(observation)"
         )
     return scorer
 
 
-def _one_line(exc: BaseException, named: bool = True) -> str:
+def one_line(exc: BaseException, named: bool = True) -> str:
     """The first line of an exception's message, after its type's name unless ``named`` is False."""
     text = str(exc).strip()
     line = text.splitlines()[0] if text else ""
@@ -495,7 +501,13 @@ def _plugin_builder(plugin: EntryPoint) -> PlannerBuilder:
     def build(spec: PlannerSpec, context: PlannerContext) -> Planner:
         if not spec.argument:
             raise PlannerError(f"planner {spec.text!r}: give {plugin.name}:ARG (for example a checkpoint)")
-        return ScoredPlanner(spec.text, plugin_scorer(plugin, spec.argument, spec.text), decoding=spec.decoding)
+        scorer = plugin_scorer(plugin, spec.argument, spec.text)
+        if isinstance(scorer, NextViewScorer):
+            from datagen.evaluate.sequential import SequentialPlanner
+
+            _plain(spec, f"{plugin.name}:ARG")
+            return SequentialPlanner(spec.text, lambda situation: scorer, context.budget_views)
+        return ScoredPlanner(spec.text, scorer, decoding=spec.decoding)
 
     return build
 
@@ -511,6 +523,15 @@ def _oracle(spec: PlannerSpec, context: PlannerContext) -> Planner:
     _plain(spec, "oracle")
     changes = oracle_settings(spec.text, spec.argument) if spec.argument else None
     return OraclePlanner(context.config, changes, spec.text)
+
+
+@register_planner("gain", "gain, gain:K")
+def _gain(spec: PlannerSpec, context: PlannerContext) -> Planner:
+    from datagen.evaluate.sequential import SequentialPlanner, TrueGains
+
+    _plain(spec, "gain:K")
+    total = _view_count(spec.text, spec.argument) if spec.argument else context.budget_views
+    return SequentialPlanner(spec.text, lambda situation: TrueGains(situation.scene), total)
 
 
 @register_planner("greedy", "greedy, greedy:K")

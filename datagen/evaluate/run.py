@@ -138,7 +138,7 @@ def evaluate(
     on_object: Callable[[ObjectOutcome], None] | None = None,
 ) -> Evaluation:
     """Run the evaluation; ``on_object`` hears about each object as it finishes (in any order)."""
-    check_planners(spec.planners, PlannerContext(config, spec.fixed))
+    check_planners(spec.planners, PlannerContext(config, spec.fixed, spec.budget.views))
     for refiner in spec.refiners:
         refiner_config(config, refiner)
     if not spec.refiners:
@@ -177,7 +177,7 @@ def _evaluate_object(index: int, obj: ObjectSpec, config: GenerationConfig, spec
 def _evaluate_scenes(
     index: int, obj: ObjectSpec, config: GenerationConfig, spec: EvaluationSpec, outcome: ObjectOutcome
 ) -> None:
-    context = PlannerContext(config, spec.fixed)
+    context = PlannerContext(config, spec.fixed, spec.budget.views)
     planners = check_planners(spec.planners, context)  # a plugin's scorer is built once per process
     prepared = prepare_object(obj, config)
     view_space = build_view_space(config.view_space)
