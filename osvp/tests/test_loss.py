@@ -116,11 +116,23 @@ def test_support_target_excuses_the_other_covers_views_by_hand() -> None:
 def test_target_loss_dispatches_and_names_what_is_missing() -> None:
     logits = probabilities_to_logits([[0.8, 0.4, 0.7]])
     label = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)
-    batch = SimpleNamespace(label=label, marginals=None, support=None, covers=None, cover_mask=None)
+    batch = SimpleNamespace(label=label, marginals=None, support=None, covers=None, cover_mask=None, view_gain=None)
     assert float(target_loss("label", logits, batch, 1.25)) == pytest.approx(float(sc_loss(logits, label, 1.25)))
     for target, missing in (("marginal", "marginals"), ("mincover", "covers"), ("support", "support")):
         with pytest.raises(ValueError, match=f"target '{target}' needs the batch's {missing}"):
             target_loss(target, logits, batch, 1.25)
-    with pytest.raises(ValueError, match="unknown target 'nope'; choose label, marginal, mincover, support"):
+    with pytest.raises(ValueError, match=r"target 'gain' needs every view's gain \(a version-3 dataset\)"):
+        target_loss("gain", logits, batch, 1.25)
+    with pytest.raises(ValueError, match="unknown target 'nope'; choose label, marginal, mincover, support, gain"):
         target_loss("nope", logits, batch, 1.25)
-    assert set(TARGETS) - set(AMBIGUITY_TARGETS) == {"label"}
+    assert set(TARGETS) - set(AMBIGUITY_TARGETS) == {"label", "gain"}
+
+
+def test_the_gain_target_is_the_mean_squared_error_of_the_predicted_shares() -> None:
+    from osvp.loss import gain_loss
+
+    logits = torch.tensor([[0.0, 2.0, -1.0], [1.0, -3.0, 0.5]])
+    gains = torch.tensor([[0.5, 0.2, 0.0], [0.1, 0.0, 0.9]])
+    expected = ((torch.sigmoid(logits) - gains) ** 2).mean()
+    assert torch.allclose(gain_loss(logits, gains), expected)
+    assert float(gain_loss(torch.full((1, 3), -40.0), torch.zeros(1, 3))) < 1e-12

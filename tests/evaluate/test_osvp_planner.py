@@ -73,3 +73,54 @@ def test_a_damaged_checkpoint_is_a_named_error(tmp_path: Path) -> None:
     assert [line for line in result.stderr.splitlines() if line] == [
         line for line in result.stderr.splitlines() if line.startswith("error:") and "broken.pt" in line
     ]
+
+
+def test_a_gain_checkpoint_is_played_step_by_step(tmp_path: Path) -> None:
+    """A checkpoint trained on every view's gain (``--target gain``) is a next-best-view planner:
+    `datagen evaluate` asks it after every view and visits its largest predicted gain."""
+    from osvp.planning import GainScorer, load_scorer
+    from osvp.train import TrainOptions, train
+
+    from datagen.evaluate.sequential import DEFAULT_TOTAL_VIEWS, SequentialPlanner
+    from schemas.planning import NextViewObservation, NextViewScorer
+
+    build_dataset(str(tmp_path / "data"), finalise_index=True)
+    outcome = train(
+        TrainOptions(
+            data=str(tmp_path / "data"), out=tmp_path / "run", epochs=1, batch_size=32, target="gain", source="observed"
+        )
+    )
+    assert outcome.best_metric == "best_view_accuracy" and 0.0 <= outcome.best_score <= 1.0
+    assert 0.0 <= outcome.history[0]["gain_mae"] <= 1.0
+    path = tmp_path / "run" / "best.pt"
+    scorer = load_scorer(path)
+    assert isinstance(scorer, GainScorer) and isinstance(scorer, NextViewScorer)
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:capsule\n")
+    cfg = config()
+    prepared = prepare_object(read_objects_file(objects).objects[0], cfg)
+    scene = build_scene(prepared, 0, cfg, build_view_space(cfg.view_space))
+    situation = Situation(RefinedScene(scene, make_refiner(cfg), cfg), 3)
+    planner = make_planner(f"osvp:{path}")
+    assert isinstance(planner, SequentialPlanner) and not planner.uses_refinement
+    plan = planner.plan(situation)
+    assert plan.ordered and len(plan.views) == DEFAULT_TOTAL_VIEWS - 1 and 3 not in plan.views
+    # the first visit is the largest predicted gain for what the initial view saw
+    state = np.zeros(32, dtype=np.float32)
+    state[3] = 1.0
+    first = NextViewObservation(views=(3,), view_state=state, cloud=scene.observed_points([3]), grid=None)
+    scores = scorer.next_view_scores(first)
+    assert scores.shape == (32,) and ((scores >= 0) & (scores <= 1)).all()
+    assert plan.views[0] == int(np.argmax(np.where(state == 0, scores, -np.inf)))
+    episode = run_episode(planner, situation)
+    assert len(episode.visited) == DEFAULT_TOTAL_VIEWS and episode.refiner == "-"
+
+
+def test_the_gain_target_needs_a_version_3_dataset(tmp_path: Path) -> None:
+    from osvp.data import DataError
+    from osvp.train import TrainOptions, train
+
+    build_dataset(str(tmp_path / "v2"), finalise_index=True, schema_version=2)
+    with pytest.raises(DataError, match=r"target 'gain' needs every view's gain, which a version-2 dataset lacks"):
+        train(TrainOptions(data=str(tmp_path / "v2"), out=tmp_path / "run", epochs=1, target="gain"))
+    assert not (tmp_path / "run").exists()

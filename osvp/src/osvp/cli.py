@@ -32,7 +32,11 @@ PAPER_LAMBDAS = (0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
 EXIT_USER_ERROR = 2
 EVAL_DECODINGS = ("threshold", "tuned", "size")
 PRIOR_DECODINGS = ("threshold", "size")
-SELECTION = {"size_cover_f1": "F1 (against the nearest minimum cover, size decoding)", "f1": "F1 (label bits, p > 0.5)"}
+SELECTION = {
+    "size_cover_f1": "F1 (against the nearest minimum cover, size decoding)",
+    "f1": "F1 (label bits, p > 0.5)",
+    "best_view_accuracy": "best-view accuracy (the largest predicted gain is the best next view)",
+}
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -85,7 +89,9 @@ def _parser() -> argparse.ArgumentParser:
             choices=TARGETS,
             default="label",
             help="loss: the stored label's SCLoss (the paper's), or, with a version-2 dataset, the minimum covers' "
-            "marginals, the nearest minimum cover, or the label without punishing other covers' views",
+            "marginals, the nearest minimum cover, or the label without punishing other covers' views; 'gain' "
+            "(a version-3 dataset) regresses every view's gain: a next-best-view planner in the manner of PCNBV, "
+            "played step by step by `datagen evaluate` (train it with --source observed, what it sees there)",
         )
         sub.add_argument(
             "--max-objects",

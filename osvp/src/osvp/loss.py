@@ -7,6 +7,10 @@ Computed from logits (softplus / ``binary_cross_entropy_with_logits``), which is
 without the overflow of log(sigmoid) near 0 and 1. The authors' code sums instead of averaging;
 the scale only changes the effective learning rate.
 
+The ``gain`` target trains the same network as a next-best-view planner in the manner of PCNBV:
+every view's share of new surface (a version-3 dataset's ``view_gain``) regressed by the sigmoid of
+its logit, mean squared error (PCNBV sums it; the scale only changes the effective learning rate).
+
 A stored label is one arbitrary minimum cover among many equally good ones (median 9), so SCLoss
 on it punishes a network for predicting another, equally good cover. The other targets
 (`TARGETS`, chosen with ``osvp train --target``) use what a version-2 dataset keeps about the
@@ -97,6 +101,13 @@ def support_loss(
     return (weights * per_view).mean()
 
 
+def gain_loss(logits: torch.Tensor, gains: torch.Tensor) -> torch.Tensor:
+    """Target ``gain``: mean over views and samples of (sigmoid(logit) - gain share)^2."""
+    if logits.shape != gains.shape:
+        raise ValueError(f"logits {tuple(logits.shape)} and gains {tuple(gains.shape)} must have one shape")
+    return F.mse_loss(torch.sigmoid(logits), gains.to(logits.dtype))
+
+
 class TargetBatch(Protocol):
     """What a target reads from a batch (`osvp.data.Batch`)."""
 
@@ -110,6 +121,8 @@ class TargetBatch(Protocol):
     def covers(self) -> torch.Tensor | None: ...
     @property
     def cover_mask(self) -> torch.Tensor | None: ...
+    @property
+    def view_gain(self) -> torch.Tensor | None: ...
 
 
 TargetLoss = Callable[[torch.Tensor, TargetBatch, float], torch.Tensor]
@@ -118,22 +131,24 @@ TargetLoss = Callable[[torch.Tensor, TargetBatch, float], torch.Tensor]
 
 @dataclass(frozen=True)
 class Target:
-    """A training target: its loss, and whether it reads the samples' ties (a version-2 dataset)."""
+    """A training target: its loss, whether it reads the samples' ties (a version-2 dataset), and the
+    dataset version it needs."""
 
     name: str
     loss: TargetLoss
     needs_ties: bool
+    since: int = 1
 
 
 TARGET_REGISTRY: dict[str, Target] = {}
 """The targets `osvp train --target` can name, in registration order (`register_target`)."""
 
 
-def register_target(name: str, needs_ties: bool = True) -> Callable[[TargetLoss], TargetLoss]:
+def register_target(name: str, needs_ties: bool = True, since: int = 1) -> Callable[[TargetLoss], TargetLoss]:
     """Register a target: a new one is one decorated function of (logits, batch, lambda)."""
 
     def register(loss: TargetLoss) -> TargetLoss:
-        TARGET_REGISTRY[name] = Target(name, loss, needs_ties)
+        TARGET_REGISTRY[name] = Target(name, loss, needs_ties, max(since, 2 if needs_ties else 1))
         return loss
 
     return register
@@ -167,10 +182,19 @@ def _support(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.
     return support_loss(logits, labels, _need("support", batch.support, "support", logits), lambda_)
 
 
+@register_target("gain", needs_ties=False, since=3)
+def _gain(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
+    if batch.view_gain is None:
+        raise ValueError("target 'gain' needs every view's gain (a version-3 dataset)")
+    return gain_loss(logits, batch.view_gain.to(logits.device))
+
+
 TARGETS = tuple(TARGET_REGISTRY)
 """The registered targets' names."""
 AMBIGUITY_TARGETS = tuple(name for name, target in TARGET_REGISTRY.items() if target.needs_ties)
 """Targets that need every sample's minimum covers (schema version 2)."""
+NEXT_VIEW_TARGETS = tuple(name for name, target in TARGET_REGISTRY.items() if target.since >= 3)
+"""Targets that train a next-best-view planner on every view's gain (schema version 3)."""
 
 
 def target_loss(target: str, logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:

@@ -6,6 +6,9 @@ sample contract (`storage.samples.resample_cloud`) from a fixed stream, so a sce
 same answer. It is a `schemas.planning.DecodingScorer`:
 `CheckpointScorer.select_views` turns the probabilities into views with the checkpoint's default
 decoding (``osvp:FILE``) or a named one (``osvp+size:FILE``, ``osvp+threshold=0.3:FILE``).
+A checkpoint trained with the ``gain`` target is a next-best-view planner instead (`GainScorer`, a
+`schemas.planning.NextViewScorer`): asked after every view with the cloud observed so far, it
+predicts every view's gain, and ``datagen evaluate`` visits the largest.
 `load_scorer` is the `schemas.planning.ScorerFactory` osvp registers as entry point ``osvp`` of the
 group ``datagen.planners`` (pyproject.toml), through which ``datagen evaluate`` finds it.
 """
@@ -20,7 +23,8 @@ import torch
 
 from osvp.checkpoint import Checkpoint, load_checkpoint
 from osvp.decoding import DECODINGS, parse_decoding, select_views
-from schemas.planning import DecodingScorer, ScorerFactory
+from osvp.loss import NEXT_VIEW_TARGETS
+from schemas.planning import DecodingScorer, NextViewObservation, ScorerFactory
 from storage.samples import resample_cloud
 
 PLANNING_SEED = 0
@@ -66,9 +70,27 @@ class CheckpointScorer(DecodingScorer):
         return select_views(p, np.asarray(view_state, dtype=np.float32).reshape(-1), chosen)
 
 
-def load_scorer(path: str | Path, device: str = "cpu") -> CheckpointScorer:
-    """The scorer of an `osvp train` checkpoint (`CheckpointError` names what is wrong with the file)."""
-    return CheckpointScorer(load_checkpoint(path), device)
+class GainScorer:
+    """A ``gain`` checkpoint as a next-best-view scorer: every view's predicted share of new surface
+    for the cloud and view state observed so far (the same network and resampling as
+    `CheckpointScorer`)."""
+
+    uses_grid = False
+
+    def __init__(self, checkpoint: Checkpoint, device: str = "cpu") -> None:
+        self.predict = CheckpointScorer(checkpoint, device)
+
+    def next_view_scores(self, observation: NextViewObservation) -> npt.NDArray[np.float64]:
+        return self.predict.view_probabilities(observation.cloud, observation.view_state)
+
+
+def load_scorer(path: str | Path, device: str = "cpu") -> CheckpointScorer | GainScorer:
+    """The scorer of an `osvp train` checkpoint (`CheckpointError` names what is wrong with the file):
+    a one-shot `CheckpointScorer`, or a `GainScorer` for a checkpoint of a next-view target."""
+    checkpoint = load_checkpoint(path)
+    if checkpoint.target in NEXT_VIEW_TARGETS:
+        return GainScorer(checkpoint, device)
+    return CheckpointScorer(checkpoint, device)
 
 
 _FACTORY: ScorerFactory = load_scorer

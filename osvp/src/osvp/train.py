@@ -51,7 +51,7 @@ from osvp.data import (
     training_subset,
 )
 from osvp.decoding import PAPER_THRESHOLD, Decoding
-from osvp.loss import AMBIGUITY_TARGETS, DEFAULT_LAMBDA, TARGETS, target_loss
+from osvp.loss import AMBIGUITY_TARGETS, DEFAULT_LAMBDA, NEXT_VIEW_TARGETS, TARGETS, target_loss
 from osvp.metrics import decoded_metrics, tune_threshold
 from osvp.network import PRESETS, OSVPNetwork, build_network
 from osvp.stream import (
@@ -192,8 +192,11 @@ def covers_needed(target: str) -> str | None:
     return f"target {target!r}" if target in AMBIGUITY_TARGETS else None
 
 
-def selection_metric(bank: SampleBank) -> str:
-    """The validation figure ``best.pt`` maximises."""
+def selection_metric(bank: SampleBank, target: str = "label") -> str:
+    """The validation figure ``best.pt`` maximises: for a next-view target, how often the largest
+    predicted gain is the best next view; else F1."""
+    if target in NEXT_VIEW_TARGETS:
+        return "best_view_accuracy"
     return "size_cover_f1" if bank.covers is not None else "f1"
 
 
@@ -270,6 +273,11 @@ def train(
         bank = val_bank = bank or SampleBank.load(options.data, options.source, covers_for=needs)
     if needs is not None:
         require_covers(val_bank, needs)
+    if options.target in NEXT_VIEW_TARGETS and val_bank.schema_version < 3:
+        raise DataError(
+            f"target {options.target!r} needs every view's gain, which a version-{val_bank.schema_version} dataset "
+            f"lacks; add it with `datagen shards relabel {options.data} --out NEW_URL` (no re-imaging)"
+        )
     if streamed is None:
         train_rows, val_rows = run_rows(bank, options)
     options = options.for_samples(len(train_rows))
@@ -277,7 +285,7 @@ def train(
     val_covers = val_bank.covers.take(val_rows) if val_bank.covers is not None else None
     preset = PRESETS[options.preset]
     network, optimiser, scheduler, start, history, best = _start(options, bank, preset.num_points)
-    metric = selection_metric(val_bank)
+    metric = selection_metric(val_bank, options.target)
     best_score = max((row[metric] for row in history), default=-1.0)
     for epoch in range(start, options.epochs):
         started = time.perf_counter()
@@ -286,7 +294,7 @@ def train(
         scheduler.step()
         spent = time.perf_counter() - started
         val_loss, probabilities = predict_rows(network, val_bank, val_rows, preset.num_points, options)
-        figures, tuned = validation_figures(val_bank, val_rows, probabilities, val_covers)
+        figures, tuned = validation_figures(val_bank, val_rows, probabilities, val_covers, options.target)
         row = {
             "epoch": epoch + 1,
             "train_loss": train_loss,
@@ -318,16 +326,33 @@ def validation_figures(
     rows: npt.NDArray[np.int64],
     probabilities: npt.NDArray[np.float32],
     covers: CoverBank | None,
+    target: str = "label",
 ) -> tuple[dict[str, float], float]:
-    """One epoch's validation columns (each of `EPOCH_DECODINGS`, the tuned threshold and its F1)
-    and the tuned threshold; ``covers``: those of ``rows``, in order."""
+    """One epoch's validation columns (each of `EPOCH_DECODINGS`, the tuned threshold and its F1;
+    for a next-view target also `next_view_figures`) and the tuned threshold; ``covers``: those of
+    ``rows``, in order."""
     state, labels = bank.view_state[rows], bank.labels[rows]
-    figures: dict[str, float] = {}
+    figures: dict[str, float] = next_view_figures(bank, rows, probabilities) if target in NEXT_VIEW_TARGETS else {}
     for prefix, decoding in EPOCH_DECODINGS.items():
         scores = decoded_metrics(probabilities, state, labels, decoding, covers).as_dict()
         figures |= {f"{prefix}{key}": value for key, value in scores.items()}
     tuned, tuned_f1 = tune_threshold(probabilities, state, labels, covers)
     return figures | {"tuned_threshold": tuned, "tuned_f1": tuned_f1}, tuned
+
+
+def next_view_figures(
+    bank: SampleBank, rows: npt.NDArray[np.int64], predicted: npt.NDArray[np.float32]
+) -> dict[str, float]:
+    """``best_view_accuracy``: the share of samples with a next view whose largest predicted gain
+    (among the open views, lowest index first) is the stored best next view; ``gain_mae``: the mean
+    absolute error of the predicted gain shares."""
+    fields = bank.samples.fields
+    gains, best = fields["view_gain"][rows], fields["best_view"][rows]
+    open_views = bank.view_state[rows] < 0.5
+    chosen = np.argmax(np.where(open_views, predicted, -np.inf), axis=1)
+    has_next = best >= 0
+    accuracy = float(np.mean(chosen[has_next] == best[has_next])) if has_next.any() else float("nan")
+    return {"best_view_accuracy": accuracy, "gain_mae": float(np.mean(np.abs(predicted - gains)))}
 
 
 def predict_rows(
