@@ -68,6 +68,14 @@ def occupancy(log_odds: npt.NDArray[np.float32]) -> npt.NDArray[np.float64]:
     return 1.0 - 1.0 / (1.0 + np.exp(np.asarray(log_odds, dtype=np.float64)))
 
 
+def case_probabilities(
+    hits: npt.NDArray[np.uint8], misses: npt.NDArray[np.uint8], case: int
+) -> npt.NDArray[np.float64]:
+    """(GRID_CELLS,) occupancy probabilities of a case in double, x-major: the values OctoMap reports and
+    the authors' generator writes as text (`case_grid` is them in float32)."""
+    return occupancy(case_log_odds(hits, misses, case))
+
+
 def case_grid(hits: npt.NDArray[np.uint8], misses: npt.NDArray[np.uint8], case: int) -> npt.NDArray[np.float32]:
     """(32, 32, 32) float32 occupancy probabilities of a case, indexed [x, y, z] (0.5 unknown)."""
-    return occupancy(case_log_odds(hits, misses, case)).astype(np.float32).reshape(GRID_SIDE, GRID_SIDE, GRID_SIDE)
+    return case_probabilities(hits, misses, case).astype(np.float32).reshape(GRID_SIDE, GRID_SIDE, GRID_SIDE)

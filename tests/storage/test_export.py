@@ -47,7 +47,7 @@ from storage.export import (
     PROVENANCE_JSON,
     PROVENANCE_MD,
     ROOT_FILES,
-    AirExport,
+    Export,
     check_layout,
     export_air,
 )
@@ -65,7 +65,7 @@ def small(tmp_path_factory: pytest.TempPathFactory) -> Built:
 
 
 @pytest.fixture(scope="session")
-def exported(small: Built, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, AirExport]:
+def exported(small: Built, tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Export]:
     out = tmp_path_factory.mktemp("air_export") / "air"
     return out, export_air(small.url, out, num_points=NUM_POINTS, seed=7, val_fraction=VAL)
 
@@ -175,7 +175,7 @@ def one_task_dataset(url: str, name: str, config: GenerationConfig, rotation: in
 # ---------------------------------------------------------------------------------------------------------
 
 
-def test_layout_has_one_cloud_state_ids_triple_per_sample(small: Built, exported: tuple[Path, AirExport]) -> None:
+def test_layout_has_one_cloud_state_ids_triple_per_sample(small: Built, exported: tuple[Path, Export]) -> None:
     out, summary = exported
     expected = expected_by_file(small.url, small)
     assert summary.written == len(exportable(small)) == len(expected)
@@ -188,7 +188,7 @@ def test_layout_has_one_cloud_state_ids_triple_per_sample(small: Built, exported
     assert not [p for p in out.parent.iterdir() if p.name != out.name]  # no staging folder left behind
 
 
-def test_files_hold_exactly_the_samples(small: Built, exported: tuple[Path, AirExport]) -> None:
+def test_files_hold_exactly_the_samples(small: Built, exported: tuple[Path, Export]) -> None:
     out, _ = exported
     for relative, sample in expected_by_file(small.url, small).items():
         cloud_path = out / relative
@@ -208,7 +208,7 @@ def test_files_hold_exactly_the_samples(small: Built, exported: tuple[Path, AirE
         assert ids  # never an empty ids file
 
 
-def test_split_files_partition_the_objects(small: Built, exported: tuple[Path, AirExport]) -> None:
+def test_split_files_partition_the_objects(small: Built, exported: tuple[Path, Export]) -> None:
     out, summary = exported
     train = (out / "train_split").read_text().splitlines()
     test = (out / "test_split").read_text().splitlines()
@@ -228,7 +228,7 @@ def test_split_files_partition_the_objects(small: Built, exported: tuple[Path, A
     assert set(test) == set(ds_test.index.column("object_name").to_pylist())
 
 
-def test_authors_loader_reads_what_export_wrote(small: Built, exported: tuple[Path, AirExport]) -> None:
+def test_authors_loader_reads_what_export_wrote(small: Built, exported: tuple[Path, Export]) -> None:
     out, summary = exported
     expected = expected_by_file(small.url, small)
     items = cosc_load(out, "train_split") + cosc_load(out, "test_split")
@@ -243,7 +243,7 @@ def test_authors_loader_reads_what_export_wrote(small: Built, exported: tuple[Pa
         assert item["object"] == sample.object_name
 
 
-def test_authors_recall_on_the_export_is_defined(exported: tuple[Path, AirExport]) -> None:
+def test_authors_recall_on_the_export_is_defined(exported: tuple[Path, Export]) -> None:
     """Their check_accuracy over what their loader returns: no NaN, and an F1 above 0, so their
     best checkpoint is saved. An empty label (what the export skips) would make it NaN."""
     out, _ = exported
@@ -266,7 +266,7 @@ def test_authors_recall_on_the_export_is_defined(exported: tuple[Path, AirExport
         assert np.isnan(authors_recall_precision(empty, empty)[0])  # why empty labels are skipped
 
 
-def test_export_is_deterministic_in_its_seed(small: Built, exported: tuple[Path, AirExport], tmp_path: Path) -> None:
+def test_export_is_deterministic_in_its_seed(small: Built, exported: tuple[Path, Export], tmp_path: Path) -> None:
     out, _ = exported
     again = tmp_path / "again"
     other = tmp_path / "other"
@@ -334,7 +334,7 @@ def test_empty_label_and_zero_point_samples_are_skipped_and_reported(tmp_path: P
     assert [p.name for p in (out / "capsule").iterdir()] == ["rotate_0"]
 
 
-def test_provenance_names_every_choice(small: Built, exported: tuple[Path, AirExport]) -> None:
+def test_provenance_names_every_choice(small: Built, exported: tuple[Path, Export]) -> None:
     out, summary = exported
     provenance = json.loads((out / PROVENANCE_JSON).read_text())
     info = open_dataset(small.url).info
@@ -390,9 +390,10 @@ def test_bad_arguments_and_missing_datasets_are_storage_errors(small: Built, tmp
     ):
         with pytest.raises(StorageError, match=fragment):
             export_air(small.url, tmp_path / "c", **kwargs)  # type: ignore[arg-type]
-    with pytest.raises(StorageError, match="mascvp"):
-        check_layout("mascvp")
-    check_layout("air")
+    with pytest.raises(StorageError, match=r"--layout 'scvp': unknown layout; the layouts are 'air' .*'pcnbv'"):
+        check_layout("scvp")
+    for name in ("air", "mascvp", "nbvnet", "pcnbv"):
+        check_layout(name)
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # nothing written, no staging folder
 
 
@@ -505,7 +506,7 @@ def assert_one_error_line(result, fragment: str) -> None:  # type: ignore[no-unt
 
 
 def test_cli_export_writes_the_layout_and_says_where(
-    cli: tuple[CliRunner, typer.Typer], small: Built, exported: tuple[Path, AirExport], tmp_path: Path
+    cli: tuple[CliRunner, typer.Typer], small: Built, exported: tuple[Path, Export], tmp_path: Path
 ) -> None:
     runner, app = cli
     out = tmp_path / "via_cli"
@@ -532,7 +533,7 @@ def test_cli_export_errors_are_one_line(cli: tuple[CliRunner, typer.Typer], smal
     )
     assert_one_error_line(result, "dataset.json")
     for extra, fragment in (
-        (["--layout", "mascvp", "--points", "8"], "unknown layout"),
+        (["--layout", "scvp", "--points", "8"], "unknown layout"),
         (["--layout", "air", "--points", "0"], "--points 0"),
         (["--layout", "air", "--points", "-3"], "--points -3"),
         (["--layout", "air", "--points", "8", "--val", "2"], "--val"),

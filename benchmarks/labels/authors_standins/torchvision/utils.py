@@ -1,0 +1,1 @@
+"""Empty: NBVNet's train.py imports ``torchvision.utils`` and never uses it."""

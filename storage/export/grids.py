@@ -1,0 +1,77 @@
+"""The occupancy grid as the grid layouts (MA-SCVP, NBVNet) write it, and what their provenance says of it.
+
+A case's grid comes from its shard's per-view ray cells (docs/pipeline.md section 8.2) in double, the
+precision OctoMap reports and the authors' generator prints; the arrays hold the same values in
+float32, exactly `storage.Dataset.next_view(i, grid=True).grid` flattened x-major.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from schemas.shard import GRID_HITS, GRID_MISSES
+from storage.occupancy import (
+    GRID_CELLS,
+    GRID_SIDE,
+    HIT_LOG_ODDS,
+    MAX_LOG_ODDS,
+    MIN_LOG_ODDS,
+    MISS_LOG_ODDS,
+    case_probabilities,
+)
+from storage.reader import Dataset
+
+
+class Grids:
+    """Each sample's occupancy probabilities, read from its shard (each shard's arrays once)."""
+
+    def __init__(self, dataset: Dataset) -> None:
+        self.dataset = dataset
+        self.shards = dataset.index.column("shard").to_pylist()
+
+    def of(self, i: int, case: int) -> npt.NDArray[np.float64]:
+        """(GRID_CELLS,) probabilities of sample i, whose view state is ``case``, x-major."""
+        shard = self.dataset.shard(self.shards[i])
+        return case_probabilities(shard.array(GRID_HITS), shard.array(GRID_MISSES), case)
+
+
+def grid_line(name: str) -> str:
+    return (
+        f"{name}: {GRID_SIDE}^3 occupancy probabilities, one per line in the authors' loop order (x, then y, "
+        "then z: line (i x 32 + j) x 32 + k), printed as C++ prints a double (6 significant digits); the "
+        "case's views inserted into an OctoMap-style grid in ascending view order (hit +0.85, miss -0.4 in "
+        "log-odds, clamped to [-2, 3.5], unknown 0.5: storage.occupancy's rounding of OctoMap's defaults, "
+        "which are logodds(0.7) = 0.8473, logodds(0.4) = -0.4055 and clamps -2.00003 and 3.511, so a cell hit "
+        "once prints 0.700567 here and 0.7 in theirs), centred on the object, half side 17/16 of its "
+        "farthest ground-truth point, floor the higher of -half side and the table, as theirs; their rays run "
+        "to each visible ground-truth voxel of a copy of the object with a table plane (the table shows as occupied "
+        "cells at the floor), ours to the 2 mm visible keys V_i without a table; their cells lie on "
+        "OctoMap's global grid (a sample point can read a cell up to one cell off), ours are the grid's own"
+    )
+
+
+def grid_facts() -> dict[str, Any]:
+    return {
+        "side": GRID_SIDE,
+        "cells": GRID_CELLS,
+        "order": "x-major: line/column (i * 32 + j) * 32 + k, as the authors' i, j, k loops",
+        "values": "OctoMap occupancy probability 1 - 1/(1 + exp(log-odds)), log-odds in float32",
+        "updates": {
+            "hit": float(HIT_LOG_ODDS),
+            "miss": float(MISS_LOG_ODDS),
+            "clamp": [float(MIN_LOG_ODDS), float(MAX_LOG_ODDS)],
+            "unknown": 0.5,
+        },
+        "text": "C++ ostream default for a double: 6 significant digits (printf %g)",
+        "array": "float32, the same probabilities (storage Dataset.next_view(i, grid=True).grid, x-major)",
+        "differs_from_authors": [
+            "updates rounded: OctoMap's setProbHit(0.7), setProbMiss(0.4) and clamps 0.1192, 0.971 are log-odds "
+            "0.847298, -0.405465, -2.000028, 3.511031 (a cell hit once: 0.7 there, 0.700567 here)",
+            "rays end at the visible 2 mm keys V_i, theirs at ground-truth voxels of a rendered copy",
+            "no table plane (theirs shows the table as occupied cells at the floor)",
+            "cells are the grid's own, theirs OctoMap's global cells read at the grid's sample points",
+        ],
+    }
