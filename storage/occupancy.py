@@ -20,14 +20,20 @@ GRID_CELLS = GRID_SIDE**3
 PACKED_CELLS = GRID_CELLS // 8
 """Bytes of one view's bit-packed cell set."""
 
-HIT_LOG_ODDS = np.float32(0.85)
-"""OctoMap's default hit update (probability 0.7)."""
-MISS_LOG_ODDS = np.float32(-0.4)
-"""OctoMap's default miss update (probability 0.4)."""
-MIN_LOG_ODDS = np.float32(-2.0)
-"""OctoMap's default lower clamp (probability 0.12)."""
-MAX_LOG_ODDS = np.float32(3.5)
-"""OctoMap's default upper clamp (probability 0.97)."""
+
+def log_odds(probability: float) -> np.float32:
+    """log(p / (1 - p)) as OctoMap stores it (a float)."""
+    return np.float32(np.log(probability / (1.0 - probability)))
+
+
+HIT_LOG_ODDS = log_odds(0.7)
+"""OctoMap's default hit update, set as probability 0.7 (0.8473; its comments round it to 0.85)."""
+MISS_LOG_ODDS = log_odds(0.4)
+"""OctoMap's default miss update, probability 0.4 (-0.4055)."""
+MIN_LOG_ODDS = log_odds(0.1192)
+"""OctoMap's default lower clamp, probability 0.1192 (-2.00003)."""
+MAX_LOG_ODDS = log_odds(0.971)
+"""OctoMap's default upper clamp, probability 0.971 (3.5110)."""
 
 
 def pack_cells(cells: npt.NDArray[np.bool_]) -> npt.NDArray[np.uint8]:

@@ -42,10 +42,9 @@ def grid_line(name: str) -> str:
     return (
         f"{name}: {GRID_SIDE}^3 occupancy probabilities, one per line in the authors' loop order (x, then y, "
         "then z: line (i x 32 + j) x 32 + k), printed as C++ prints a double (6 significant digits); the "
-        "case's views inserted into an OctoMap-style grid in ascending view order (hit +0.85, miss -0.4 in "
-        "log-odds, clamped to [-2, 3.5], unknown 0.5: storage.occupancy's rounding of OctoMap's defaults, "
-        "which are logodds(0.7) = 0.8473, logodds(0.4) = -0.4055 and clamps -2.00003 and 3.511, so a cell hit "
-        "once prints 0.700567 here and 0.7 in theirs), centred on the object, half side 17/16 of its "
+        "case's views inserted into an OctoMap-style grid in ascending view order with OctoMap's default updates "
+        "(hit logodds(0.7), miss logodds(0.4), clamped to probabilities 0.1192 and 0.971, unknown 0.5: a cell "
+        "hit once prints 0.7, missed twice 0.307692, as in theirs), centred on the object, half side 17/16 of its "
         "farthest ground-truth point, floor the higher of -half side and the table, as theirs; their rays run "
         "to each visible ground-truth voxel of a copy of the object with a table plane (the table shows as occupied "
         "cells at the floor), ours to the 2 mm visible keys V_i without a table; their cells lie on "
@@ -68,8 +67,6 @@ def grid_facts() -> dict[str, Any]:
         "text": "C++ ostream default for a double: 6 significant digits (printf %g)",
         "array": "float32, the same probabilities (storage Dataset.next_view(i, grid=True).grid, x-major)",
         "differs_from_authors": [
-            "updates rounded: OctoMap's setProbHit(0.7), setProbMiss(0.4) and clamps 0.1192, 0.971 are log-odds "
-            "0.847298, -0.405465, -2.000028, 3.511031 (a cell hit once: 0.7 there, 0.700567 here)",
             "rays end at the visible 2 mm keys V_i, theirs at ground-truth voxels of a rendered copy",
             "no table plane (theirs shows the table as occupied cells at the floor)",
             "cells are the grid's own, theirs OctoMap's global cells read at the grid's sample points",
