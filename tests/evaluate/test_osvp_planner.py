@@ -35,15 +35,20 @@ def checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return folder / "run" / "best.pt"
 
 
-def test_a_trained_checkpoint_plans_the_views_its_decodings_choose(checkpoint: Path, tmp_path: Path) -> None:
-    """`osvp+threshold:FILE` takes the views scored above one half (the paper's rule); plain `osvp:FILE`
-    takes what the checkpoint's default decoding selects from the same probabilities."""
-    objects = tmp_path / "objects.txt"
+def capsule_situation(folder: Path) -> Situation:
+    """The capsule at rotation 0 from initial view 3, under the tests' config (refiner none)."""
+    objects = folder / "objects.txt"
     objects.write_text("builtin:capsule\n")
     cfg = config()
     prepared = prepare_object(read_objects_file(objects).objects[0], cfg)
     scene = build_scene(prepared, 0, cfg, build_view_space(cfg.view_space))
-    situation = Situation(RefinedScene(scene, make_refiner(cfg), cfg), 3)
+    return Situation(RefinedScene(scene, make_refiner(cfg), cfg), 3)
+
+
+def test_a_trained_checkpoint_plans_the_views_its_decodings_choose(checkpoint: Path, tmp_path: Path) -> None:
+    """`osvp+threshold:FILE` takes the views scored above one half (the paper's rule); plain `osvp:FILE`
+    takes what the checkpoint's default decoding selects from the same probabilities."""
+    situation = capsule_situation(tmp_path)
     planner = make_planner(f"osvp+threshold:{checkpoint}")
     assert planner.name == f"osvp+threshold:{checkpoint}" and planner.uses_refinement
     plan = planner.plan(situation)
@@ -95,12 +100,8 @@ def test_a_gain_checkpoint_is_played_step_by_step(tmp_path: Path) -> None:
     path = tmp_path / "run" / "best.pt"
     scorer = load_scorer(path)
     assert isinstance(scorer, GainScorer) and isinstance(scorer, NextViewScorer)
-    objects = tmp_path / "objects.txt"
-    objects.write_text("builtin:capsule\n")
-    cfg = config()
-    prepared = prepare_object(read_objects_file(objects).objects[0], cfg)
-    scene = build_scene(prepared, 0, cfg, build_view_space(cfg.view_space))
-    situation = Situation(RefinedScene(scene, make_refiner(cfg), cfg), 3)
+    situation = capsule_situation(tmp_path)
+    scene = situation.scene
     planner = make_planner(f"osvp:{path}")
     assert isinstance(planner, SequentialPlanner) and not planner.uses_refinement
     plan = planner.plan(situation)
