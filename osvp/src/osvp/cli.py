@@ -334,9 +334,14 @@ def _epoch_line(report: EpochReport) -> None:
     row = report.row
     covers = f" cover F1 {row['cover_f1']:.3f} covers U {row['covers_u']:.3f}" if "cover_f1" in row else ""
     size = f" cover F1 {row['size_cover_f1']:.3f}" if "size_cover_f1" in row else f" F1 {row['size_f1']:.3f}"
+    gains = (
+        f" best view {row['best_view_accuracy']:.3f} gain error {row['gain_mae']:.4f};"
+        if "best_view_accuracy" in row
+        else ""
+    )
     _clear()
     _note(
-        f"epoch {report.epoch}/{report.epochs}: loss {row['train_loss']:.4f} val {row['val_loss']:.4f} "
+        f"epoch {report.epoch}/{report.epochs}: loss {row['train_loss']:.4f} val {row['val_loss']:.4f}{gains} "
         f"P {row['precision']:.3f} R {row['recall']:.3f} F1 {row['f1']:.3f} exact {row['exact_accuracy']:.3f}"
         f"{covers} views {row['views']:.2f}/{row['label_views']:.2f}; size:{size} views {row['size_views']:.2f}; "
         f"tuned {row['tuned_threshold']:.2f}: {row['tuned_f1']:.3f}; "
