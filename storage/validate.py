@@ -45,6 +45,7 @@ from schemas.shard import (
 from storage.covers import listed_problem, undominated, universe_rows
 from storage.dataset_info import read_info
 from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
+from storage.gains import MaskCounts
 from storage.location import DamagedFile, Location, StorageError, open_location
 from storage.occupancy import PACKED_CELLS
 from storage.problems import Mend, Problem, lines
@@ -429,11 +430,9 @@ def _check_next_view(
         return
     masks = arrays[MASKS]
     for name, key_masks in ((VIEW_GAINS, seen), (COVERAGE_GAINS, full_masks)):
-        distinct, counts = np.unique(key_masks, return_counts=True)
-        bits = ((distinct[:, None] >> np.arange(num_views, dtype=np.uint64)) & np.uint64(1)).astype(np.int64)
+        counted = MaskCounts.of(key_masks, num_views)
         for row in rows.tolist():
-            unseen = (distinct & masks[row, VIEW_STATE_COLUMN]) == 0
-            if not np.array_equal(counts[unseen] @ bits[unseen], arrays[name][row].astype(np.int64)):
+            if not np.array_equal(counted.gains(int(masks[row, VIEW_STATE_COLUMN])), arrays[name][row]):
                 yield at("gains", f"{name} differ from the gains recounted from the stored sets", name, f"row {row}")
 
 

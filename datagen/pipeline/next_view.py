@@ -6,8 +6,8 @@ A view's gain is what it would add to what the case's views already have, counte
   sees that no view of S sees; normalised by every key any view sees;
 - over the coverage sets C_i: the keys of P_full in C_i and in no C_s of S; normalised by |P_full|.
 
-Both are counted from each key's view mask: a key none of S's views holds adds one to every view in
-its mask. Distinct masks are counted once per task, so a case costs one small matrix product. The best
+Both are counted from each key's view mask (`storage.gains.MaskCounts`, shared with
+`storage.validate`). The best
 next view (NBVNet's class) is the view outside S with the largest visibility gain, the lowest index
 among equals, as the authors' first-maximum loop picks it.
 """
@@ -22,35 +22,8 @@ import numpy.typing as npt
 
 from datagen.pipeline.coverage import view_masks
 from datagen.pipeline.setcover import MaskArray
+from storage.gains import GainArray, MaskCounts
 from storage.samples import best_views
-
-GainArray = npt.NDArray[np.uint32]
-
-
-@dataclass(frozen=True)
-class MaskCounts:
-    """The distinct view masks of a key set, how many keys have each, and their bits."""
-
-    masks: MaskArray
-    counts: npt.NDArray[np.int64]
-    bits: npt.NDArray[np.int64]
-    """(D, n) 0/1 of each distinct mask."""
-
-    @classmethod
-    def of(cls, masks: MaskArray, views: int) -> MaskCounts:
-        distinct, counts = np.unique(np.asarray(masks, dtype=np.uint64), return_counts=True)
-        bits = ((distinct[:, None] >> np.arange(views, dtype=np.uint64)) & np.uint64(1)).astype(np.int64)
-        return cls(masks=distinct, counts=counts.astype(np.int64), bits=bits)
-
-    @property
-    def total(self) -> int:
-        """Keys counted (the denominator of the normalised gain)."""
-        return int(self.counts.sum())
-
-    def gains(self, case: int) -> GainArray:
-        """(n,) keys each view would add to case ``case`` (0 for the case's own views)."""
-        unseen = (self.masks & np.uint64(case)) == 0
-        return (self.counts[unseen] @ self.bits[unseen]).astype(np.uint32)
 
 
 @dataclass(frozen=True)
