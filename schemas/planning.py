@@ -52,7 +52,9 @@ class ViewScorer(Protocol):
     The views above 0.5 are taken (the paper's rule) unless the scorer is a `DecodingScorer`.
 
     A scorer with ``source = "observed"`` gets what the input views saw (the paper's "Ours-Sparse");
-    any other gets the refined cloud P(O_S), a shard's ``points``.
+    any other gets the refined cloud P(O_S), a shard's ``points``. A scorer with ``uses_grid = True``
+    (SCVP's manner) is called with the keyword ``grid`` too: the (32, 32, 32) occupancy probabilities
+    of its input views, as a sample's ``grid`` holds them; it gets the observed cloud, unrefined.
     """
 
     def view_probabilities(

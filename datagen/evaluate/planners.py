@@ -45,6 +45,7 @@ from pydantic import ValidationError
 
 from datagen.errors import DatagenError, PlannerError
 from datagen.evaluate.fixed import FIXED_OPTION, FixedPlans, spread_views
+from datagen.evaluate.grids import SceneGrids, empty_log_odds, inserted, occupancy_grid
 from datagen.evaluate.situation import Situation, needs_refinement
 from datagen.pipeline.setcover import mask_to_views
 from schemas.config import GenerationConfig
@@ -304,14 +305,27 @@ class ScoredPlanner:
         self.scorer = scorer
         self.decoding = decoding
         """None: the scorer's default (the paper's 0.5 rule for a scorer without decodings)."""
+        self.grids = SceneGrids() if getattr(scorer, "uses_grid", False) else None
+        """A grid planner's (SCVP's manner) scene grids: it is shown the initial view's occupancy grid
+        and the cloud that view observed, and needs no refinement."""
+        self.uses_refinement = self.grids is None
 
     def plan(self, situation: Situation) -> Plan:
-        request = situation.request()
-        cloud = request.observed if getattr(self.scorer, "source", "points") == "observed" else request.points
-        probabilities = np.asarray(self.scorer.view_probabilities(cloud, request.view_state), dtype=np.float64)
-        self._check_length("probabilities", probabilities, request.num_views)
-        take = self._select(probabilities, request.view_state)
-        open_views = np.asarray(request.view_state) == 0
+        if self.grids is None:
+            request = situation.request()
+            cloud = request.observed if getattr(self.scorer, "source", "points") == "observed" else request.points
+            view_state = request.view_state
+            scores = self.scorer.view_probabilities(cloud, view_state)
+        else:
+            view_state = np.zeros(situation.scene.num_views, dtype=np.float32)
+            view_state[situation.initial_view] = 1.0
+            cloud = situation.scene.observed_points([situation.initial_view])
+            grid = occupancy_grid(inserted(empty_log_odds(), self.grids.of(situation), [situation.initial_view]))
+            scores = self.scorer.view_probabilities(cloud, view_state, grid=grid)  # type: ignore[call-arg]
+        probabilities = np.asarray(scores, dtype=np.float64)
+        self._check_length("probabilities", probabilities, view_state.size)
+        take = self._select(probabilities, view_state)
+        open_views = np.asarray(view_state) == 0
         chosen = np.flatnonzero(take & open_views)
         ranking = tuple(int(v) for v in np.argsort(-probabilities, kind="stable") if open_views[v])
         return Plan(views=tuple(int(v) for v in chosen), probabilities=probabilities, at_count=lambda c: ranking[:c])

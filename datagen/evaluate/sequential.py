@@ -15,18 +15,17 @@ play the ``greedy`` bound, view for view.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 
 from datagen.errors import PlannerError
+from datagen.evaluate.grids import SceneGrids, empty_log_odds, inserted, occupancy_grid
 from datagen.evaluate.planners import Plan, one_line
 from datagen.evaluate.scene import Scene
 from datagen.evaluate.situation import Situation
-from datagen.pipeline.occupancy import ViewGrids, view_grids
 from schemas.planning import NextViewObservation, NextViewScorer
-from storage.occupancy import GRID_SIDE, insert_view, occupancy
 
 DEFAULT_TOTAL_VIEWS = 10
 """Views in all (the initial one included) when no count is asked for: NBVNet's and PCNBV's 10 iterations."""
@@ -57,14 +56,14 @@ class SequentialPlanner:
     scorer_for: ScorerFor
     total_views: int | None = None
     uses_refinement = False
-    _grids: tuple[Scene, ViewGrids] | None = None
+    grids: SceneGrids = field(default_factory=SceneGrids)
 
     def plan(self, situation: Situation) -> Plan:
         scene = situation.scene
         scorer = self.scorer_for(situation)
-        grids = self._scene_grids(situation) if getattr(scorer, "uses_grid", True) else None
+        grids = self.grids.of(situation) if getattr(scorer, "uses_grid", True) else None
         taken = [situation.initial_view]
-        log_odds = _inserted(np.zeros(GRID_SIDE**3, dtype=np.float32), grids, situation.initial_view)
+        log_odds = inserted(empty_log_odds(), grids, taken) if grids is not None else empty_log_odds()
         limit = min(self.total_views or DEFAULT_TOTAL_VIEWS, scene.num_views)
         while len(taken) < limit:
             scores = self._scores(scorer, scene, taken, log_odds if grids is not None else None)
@@ -75,7 +74,8 @@ class SequentialPlanner:
             if candidates[best] <= 0 and self.total_views is None:
                 break
             taken.append(best)
-            log_odds = _inserted(log_odds, grids, best)
+            if grids is not None:
+                log_odds = inserted(log_odds, grids, [best])
         return Plan(views=tuple(taken[1:]), ordered=True)
 
     def _scores(
@@ -83,9 +83,7 @@ class SequentialPlanner:
     ) -> npt.NDArray[np.float64]:
         state = np.zeros(scene.num_views, dtype=np.float32)
         state[taken] = 1.0
-        grid = None
-        if log_odds is not None:
-            grid = occupancy(log_odds).astype(np.float32).reshape(GRID_SIDE, GRID_SIDE, GRID_SIDE)
+        grid = occupancy_grid(log_odds) if log_odds is not None else None
         observation = NextViewObservation(
             views=tuple(taken), view_state=state, cloud=scene.observed_points(taken), grid=grid
         )
@@ -102,24 +100,3 @@ class SequentialPlanner:
                 "(one finite score per view); its checkpoint was trained for another view space"
             )
         return scores
-
-    def _scene_grids(self, situation: Situation) -> ViewGrids:
-        """Every view's ray cells of the scene's grid, walked once per scene."""
-        scene = situation.scene
-        if self._grids is None or self._grids[0] is not scene:
-            config = situation.config
-            visible = [o.keys for o in scene.scan.observations]
-            walked = view_grids(
-                visible, scene.scan.ground_truth.keys, scene.positions, config.voxel_size, config.grid_offset
-            )
-            self._grids = (scene, walked)
-        return self._grids[1]
-
-
-def _inserted(log_odds: npt.NDArray[np.float32], grids: ViewGrids | None, view: int) -> npt.NDArray[np.float32]:
-    """The log-odds after inserting ``view`` (OctoMap's clamped updates, `storage.occupancy`)."""
-    if grids is None:
-        return log_odds
-    value = log_odds.copy()
-    insert_view(value, grids.hits[view], grids.misses[view])
-    return value

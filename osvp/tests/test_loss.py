@@ -116,16 +116,20 @@ def test_support_target_excuses_the_other_covers_views_by_hand() -> None:
 def test_target_loss_dispatches_and_names_what_is_missing() -> None:
     logits = probabilities_to_logits([[0.8, 0.4, 0.7]])
     label = torch.tensor([[1.0, 0.0, 0.0]], dtype=torch.float64)
-    batch = SimpleNamespace(label=label, marginals=None, support=None, covers=None, cover_mask=None, view_gain=None)
+    batch = SimpleNamespace(
+        label=label, marginals=None, support=None, covers=None, cover_mask=None, view_gain=None, best_view=None
+    )
     assert float(target_loss("label", logits, batch, 1.25)) == pytest.approx(float(sc_loss(logits, label, 1.25)))
     for target, missing in (("marginal", "marginals"), ("mincover", "covers"), ("support", "support")):
         with pytest.raises(ValueError, match=f"target '{target}' needs the batch's {missing}"):
             target_loss(target, logits, batch, 1.25)
     with pytest.raises(ValueError, match=r"target 'gain' needs every view's gain \(a version-3 dataset\)"):
         target_loss("gain", logits, batch, 1.25)
+    with pytest.raises(ValueError, match=r"target 'best_view' needs every sample's best next view \(a version-3"):
+        target_loss("best_view", logits, batch, 1.25)
     with pytest.raises(ValueError, match="unknown target 'nope'; choose label, marginal, mincover, support, gain"):
         target_loss("nope", logits, batch, 1.25)
-    assert set(TARGETS) - set(AMBIGUITY_TARGETS) == {"label", "gain"}
+    assert set(TARGETS) - set(AMBIGUITY_TARGETS) == {"label", "gain", "best_view"}
 
 
 def test_the_gain_target_is_the_mean_squared_error_of_the_predicted_shares() -> None:
@@ -136,3 +140,26 @@ def test_the_gain_target_is_the_mean_squared_error_of_the_predicted_shares() -> 
     expected = ((torch.sigmoid(logits) - gains) ** 2).mean()
     assert torch.allclose(gain_loss(logits, gains), expected)
     assert float(gain_loss(torch.full((1, 3), -40.0), torch.zeros(1, 3))) < 1e-12
+
+
+def test_the_best_view_target_is_the_cross_entropy_of_the_class_among_the_open_views_by_hand() -> None:
+    """NBVNet's classification, with the views taken masked out: the softmax runs over the open views
+    only, and a case without a next view (best view -1) adds nothing."""
+    from osvp.loss import best_view_loss
+
+    logits = torch.tensor([[1.0, 2.0, 0.5, -1.0], [0.0, 0.3, 3.0, 1.0], [5.0, 1.0, 1.0, 1.0]], dtype=torch.float64)
+    state = torch.tensor([[0, 1, 0, 0], [1, 0, 0, 0], [1, 1, 1, 1]], dtype=torch.float64)
+    best = torch.tensor([0, 3, -1])
+    # sample 0: open views 0, 2, 3 -> -log(e^1 / (e^1 + e^0.5 + e^-1)); sample 1: open 1, 2, 3 -> view 3
+    first = -math.log(math.exp(1.0) / (math.exp(1.0) + math.exp(0.5) + math.exp(-1.0)))
+    second = -math.log(math.exp(1.0) / (math.exp(0.3) + math.exp(3.0) + math.exp(1.0)))
+    assert float(best_view_loss(logits, state, best)) == pytest.approx((first + second) / 2, rel=1e-12)
+    none = best_view_loss(logits[2:], state[2:], best[2:])
+    assert float(none) == 0.0 and none.requires_grad is False
+    trainable = logits.clone().requires_grad_(True)
+    best_view_loss(trainable, state, best).backward()
+    assert (
+        trainable.grad is not None
+        and float(trainable.grad[0, 1]) == 0.0
+        and float(trainable.grad[2].abs().sum()) == 0.0
+    )

@@ -95,3 +95,49 @@ def test_nearest_neighbours_by_hand() -> None:
     queries = torch.tensor([[[2.9, 0, 0], [0.2, 0, 0]]])
     found = nearest_neighbours(queries, points, 2)[0]
     assert found[0].tolist() == [2, 1] and found[1].tolist() == [0, 1]
+
+
+@pytest.mark.parametrize("family", ["nbvnet", "scvp"])
+def test_grid_networks_map_a_grid_to_one_logit_per_view(family: str) -> None:
+    """NBVNet's body: three conv-ReLU-pool blocks take 32^3 to 4^3; SCVP joins the view state after
+    them, NBVNet ignores it (its masked classification needs only the grid)."""
+    from osvp.architectures import architecture
+
+    chosen = architecture(family)
+    network = chosen.build(chosen.preset("paper"), 32).eval()
+    grid = torch.rand(3, 32, 32, 32, generator=torch.Generator().manual_seed(1))
+    state = torch.zeros(3, 32)
+    logits = network(grid, state)
+    assert logits.shape == (3, 32) and torch.isfinite(logits).all()
+    state[:, 5] = 1.0
+    changed = not torch.allclose(network(grid, state), logits)
+    assert changed == (family == "scvp")
+    assert chosen.reads == "grid" and chosen.preset("paper").num_points == 1
+    assert network.head[0].in_features == 8 * 4**3 + (32 if family == "scvp" else 0)
+    logits.sum().backward()
+    with pytest.raises(ValueError, match=r"grid must be \(B, 32, 32, 32\)"):
+        network(torch.zeros(3, 16, 16, 16), state)
+
+
+def test_grid_presets_round_trip_and_refusals() -> None:
+    from osvp.grid_network import NBVNET_PRESETS, SCVP_PRESETS, GridPreset
+
+    for preset in (*NBVNET_PRESETS.values(), *SCVP_PRESETS.values()):
+        assert GridPreset.from_dict(preset.as_dict()) == preset
+    assert NBVNET_PRESETS["paper"].channels == (10, 12, 8) and NBVNET_PRESETS["paper"].hidden == (1500, 500, 100)
+    broken = {**NBVNET_PRESETS["small"].as_dict(), "channels": [10, 0, 8]}
+    with pytest.raises(ValueError, match="positive whole number"):
+        GridPreset.from_dict(broken)
+    with pytest.raises(ValueError, match="needs exactly"):
+        GridPreset.from_dict({"name": "x"})
+
+
+def test_every_architecture_has_the_same_preset_names_and_a_default_target() -> None:
+    from osvp.architectures import ARCHITECTURES, architecture
+    from osvp.loss import TARGETS
+
+    assert sorted(ARCHITECTURES) == ["nbvnet", "osvp", "scvp"]
+    for family in ARCHITECTURES.values():
+        assert sorted(family.presets) == ["paper", "small"] and family.default_target in TARGETS
+    with pytest.raises(ValueError, match="unknown network 'pointnet'; choose nbvnet, osvp, scvp"):
+        architecture("pointnet")

@@ -63,7 +63,9 @@ def test_a_version_1_dataset_trains_on_labels_and_refuses_ambiguity_targets(
     assert main([*args, "--target", "mincover"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("error: ") and "datagen shards relabel" in err[0]
-    assert main(args) == 0
+    assert main(args) == 2  # the default target (mincover) needs the covers too
+    assert "datagen shards relabel" in capsys.readouterr().err
+    assert main([*args, "--target", "label"]) == 0
     assert "best validation F1 (label bits, p > 0.5)" in capsys.readouterr().err
     assert main(["eval", "--data", v1_dataset_url, "--checkpoint", str(out / "best.pt")]) == 0
     network = capsys.readouterr().out.splitlines()[2].split("|")

@@ -12,7 +12,7 @@ import pytest
 import torch
 from osvp.checkpoint import CheckpointError, load_checkpoint
 from osvp.data import DataError, SampleBank, split_rows
-from osvp.loss import AMBIGUITY_TARGETS, TARGETS
+from osvp.loss import AMBIGUITY_TARGETS, NEXT_VIEW_TARGETS, TARGETS
 from osvp.metrics import tune_threshold
 from osvp.network import PRESETS, build_network
 from osvp.planning import load_scorer
@@ -58,7 +58,7 @@ def test_resume_gives_the_weights_of_an_uninterrupted_run(
     b = load_checkpoint(tmp_path / "resumed" / "last.pt")
     assert a.epoch == b.epoch == 2 and a.target == b.target == target
     assert a.tuned_threshold == b.tuned_threshold == straight.history[-1]["tuned_threshold"]
-    expected_metric = "best_view_accuracy" if target == "gain" else "size_cover_f1"
+    expected_metric = "best_view_accuracy" if target in NEXT_VIEW_TARGETS else "size_cover_f1"
     assert straight.best_metric == expected_metric and all(row["train_loss"] > 0 for row in straight.history)
     for key, value in a.data["model"].items():
         assert torch.equal(value, b.data["model"][key]), key
@@ -164,7 +164,7 @@ def test_a_version_1_dataset_trains_on_labels_and_refuses_the_other_targets(
     v1_dataset_url: str, tmp_path: Path
 ) -> None:
     old = SampleBank.load(v1_dataset_url)
-    outcome = train(options(v1_dataset_url, tmp_path / "run"), bank=old)
+    outcome = train(options(v1_dataset_url, tmp_path / "run", target="label"), bank=old)
     assert outcome.best_metric == "f1" and "cover_f1" not in outcome.history[0]
     assert 0.05 <= outcome.history[0]["tuned_threshold"] <= 0.95
     header = (tmp_path / "run" / "metrics.csv").read_text().splitlines()[0].split(",")
@@ -184,3 +184,39 @@ def test_steps_give_every_training_set_the_same_optimisation(tmp_path: Path) -> 
     assert options.for_samples(10**6).epochs == 1
     plain = TrainOptions(data="unused", out=tmp_path, epochs=7)
     assert plain.for_samples(1000) is plain
+
+
+@pytest.mark.parametrize("network", ["nbvnet", "scvp"])
+def test_grid_networks_train_on_the_grid_and_resume_exactly(network: str, dataset_url: str, tmp_path: Path) -> None:
+    """NBVNet-style (the best next view as a class) and SCVP-style (the nearest minimum cover) networks
+    read each case's occupancy grid through the same loop, checkpoints and resume as osvp's."""
+    grids = SampleBank.load(dataset_url, fields=("grid",))
+    assert grids.samples.fields["grid"].shape == (len(grids), 32, 32, 32)
+    straight = train(options(dataset_url, tmp_path / "straight", epochs=2, network=network, fit_rows=20), bank=grids)
+    train(options(dataset_url, tmp_path / "resumed", epochs=1, network=network, fit_rows=20), bank=grids)
+    train(options(dataset_url, tmp_path / "resumed", epochs=2, network=network, resume=True, fit_rows=20), bank=grids)
+    a, b = load_checkpoint(tmp_path / "straight" / "last.pt"), load_checkpoint(tmp_path / "resumed" / "last.pt")
+    expected = {"nbvnet": ("best_view", "best_view_accuracy"), "scvp": ("mincover", "size_cover_f1")}[network]
+    assert (a.architecture.name, a.target, straight.best_metric) == (network, *expected)
+    assert a.num_points == 1 and a.preset.as_dict() == b.preset.as_dict()
+    for key, value in a.data["model"].items():
+        assert torch.equal(value, b.data["model"][key]), key
+    row = straight.history[-1]
+    assert (
+        0.0 <= row[f"fit_{expected[1]}"] <= 1.0
+        and f"fit_{expected[1]}" in (tmp_path / "straight" / "metrics.csv").read_text()
+    )
+    assert row[expected[1]] == a.training["history"][-1][expected[1]]
+
+
+def test_a_grid_network_needs_a_version_3_dataset(v1_dataset_url: str, tmp_path: Path) -> None:
+    with pytest.raises(DataError, match=r"network 'scvp' needs every case's next-view labels and occupancy grid"):
+        train(options(v1_dataset_url, tmp_path / "run", network="scvp", target="label"))
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_default_target_is_each_networks_best_measured_one(tmp_path: Path) -> None:
+    """A plain run trains osvp on the nearest minimum cover (the recipe's measured best), NBVNet on its class."""
+    assert TrainOptions(data="unused", out=tmp_path).target == "mincover"
+    assert TrainOptions(data="unused", out=tmp_path, network="nbvnet").target == "best_view"
+    assert TrainOptions(data="unused", out=tmp_path, network="scvp", target="label").target == "label"

@@ -83,7 +83,7 @@ def test_a_damaged_checkpoint_is_a_named_error(tmp_path: Path) -> None:
 def test_a_gain_checkpoint_is_played_step_by_step(tmp_path: Path) -> None:
     """A checkpoint trained on every view's gain (``--target gain``) is a next-best-view planner:
     `datagen evaluate` asks it after every view and visits its largest predicted gain."""
-    from osvp.planning import GainScorer, load_scorer
+    from osvp.planning import NextViewCheckpointScorer, load_scorer
     from osvp.train import TrainOptions, train
 
     from datagen.evaluate.sequential import DEFAULT_TOTAL_VIEWS, SequentialPlanner
@@ -99,7 +99,7 @@ def test_a_gain_checkpoint_is_played_step_by_step(tmp_path: Path) -> None:
     assert 0.0 <= outcome.history[0]["gain_mae"] <= 1.0
     path = tmp_path / "run" / "best.pt"
     scorer = load_scorer(path)
-    assert isinstance(scorer, GainScorer) and isinstance(scorer, NextViewScorer)
+    assert isinstance(scorer, NextViewCheckpointScorer) and isinstance(scorer, NextViewScorer)
     situation = capsule_situation(tmp_path)
     scene = situation.scene
     planner = make_planner(f"osvp:{path}")
@@ -122,6 +122,58 @@ def test_the_gain_target_needs_a_version_3_dataset(tmp_path: Path) -> None:
     from osvp.train import TrainOptions, train
 
     build_dataset(str(tmp_path / "v2"), finalise_index=True, schema_version=2)
-    with pytest.raises(DataError, match=r"target 'gain' needs every view's gain, which a version-2 dataset lacks"):
+    with pytest.raises(
+        DataError,
+        match=r"target 'gain' needs every case's next-view labels and occupancy grid, which a version-2 dataset lacks",
+    ):
         train(TrainOptions(data=str(tmp_path / "v2"), out=tmp_path / "run", epochs=1, target="gain"))
     assert not (tmp_path / "run").exists()
+
+
+def test_grid_checkpoints_see_the_grid_the_generator_stores(tmp_path: Path) -> None:
+    """An NBVNet-style checkpoint is played step by step and an SCVP-style one plans one shot, both
+    from the occupancy grid evaluate builds; for the initial view it is exactly the grid the dataset
+    stores for that single-view case of the same object and rotation (independent code paths: the
+    generator's shard against evaluate's own walk of the scene)."""
+    from osvp.planning import CheckpointScorer, NextViewCheckpointScorer
+    from osvp.train import TrainOptions, train
+
+    import storage
+    from datagen.evaluate.sequential import SequentialPlanner
+
+    data = str(tmp_path / "data")
+    build_dataset(data, finalise_index=True)
+    dataset = storage.open_dataset(data)
+    index = dataset.index.to_pydict()
+    row = next(
+        i
+        for i, (name, state) in enumerate(zip(index["object_name"], index["view_state"], strict=True))
+        if name == "capsule" and int(state) == 1 << 3
+    )
+    stored = dataset.next_view(row, grid=True).grid
+    assert stored is not None and stored.shape == (32, 32, 32)
+    seen: list[np.ndarray] = []
+
+    for network in ("nbvnet", "scvp"):
+        train(TrainOptions(data=data, out=tmp_path / network, epochs=1, batch_size=32, network=network))
+        planner = make_planner(f"osvp:{tmp_path / network / 'best.pt'}")
+        scorer = planner.scorer_for(None) if isinstance(planner, SequentialPlanner) else planner.scorer  # type: ignore[attr-defined, arg-type]
+        assert isinstance(scorer, NextViewCheckpointScorer if network == "nbvnet" else CheckpointScorer)
+        assert scorer.uses_grid and not planner.uses_refinement
+        asked = scorer.predict if network == "nbvnet" else scorer  # type: ignore[attr-defined]
+        answer = asked.view_probabilities
+
+        def spy(points, view_state, grid=None, answer=answer):  # type: ignore[no-untyped-def]
+            seen.append(np.array(grid))
+            return answer(points, view_state, grid)
+
+        asked.view_probabilities = spy
+        plan = planner.plan(capsule_situation(tmp_path))
+        assert np.array_equal(seen[0], stored), network
+        first = answer(None, np.eye(32, dtype=np.float32)[3], stored)
+        best = int(np.argmax(np.where(np.arange(32) != 3, first, -np.inf)))
+        if network == "nbvnet":
+            assert plan.ordered and len(plan.views) == 9 and plan.views[0] == best and len(seen) == 9
+        else:
+            assert len(seen) == 1 and np.array_equal(plan.probabilities, first)
+        seen.clear()

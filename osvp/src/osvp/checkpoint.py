@@ -8,7 +8,8 @@ is a `CheckpointError` naming the file and the fix.
 Version 2 adds how the planner turns probabilities into views: ``decoding`` (its default, see
 `osvp.decoding`) and ``tuned_threshold`` (chosen on the run's validation samples); the training
 target is in the stored options. A version-1 checkpoint still loads and plans (target ``label``,
-the paper's 0.5 rule, no tuned threshold), but a run is never resumed from one.
+the paper's 0.5 rule, no tuned threshold), but a run is never resumed from one. A checkpoint names
+its network family (``architecture``, `osvp.architectures`); one without the field holds ``osvp``.
 """
 
 from __future__ import annotations
@@ -21,8 +22,9 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from torch import nn
 
-from osvp.network import NetworkPreset, OSVPNetwork, build_network
+from osvp.architectures import DEFAULT_ARCHITECTURE, Architecture, Preset, architecture
 from schemas.errors import DatagenError
 
 FORMAT = "osvp-checkpoint"
@@ -41,8 +43,13 @@ class Checkpoint:
     data: dict[str, Any]
 
     @property
-    def preset(self) -> NetworkPreset:
-        return NetworkPreset.from_dict(self.data["preset"])
+    def architecture(self) -> Architecture:
+        """The network family (`osvp.architectures`); ``osvp`` for a checkpoint that names none."""
+        return architecture(str(self.data.get("architecture", DEFAULT_ARCHITECTURE)))
+
+    @property
+    def preset(self) -> Preset:
+        return self.architecture.parse_preset(self.data["preset"])
 
     @property
     def num_views(self) -> int:
@@ -90,9 +97,9 @@ class Checkpoint:
             return str(stored)
         return "tuned" if self.tuned_threshold is not None else "threshold"
 
-    def network(self, device: str | torch.device = "cpu") -> OSVPNetwork:
+    def network(self, device: str | torch.device = "cpu") -> nn.Module:
         """The trained network, in eval mode."""
-        network = build_network(self.preset, self.num_views)
+        network = self.architecture.build(self.preset, self.num_views)
         try:
             network.load_state_dict(self.data["model"])
         except RuntimeError as exc:
@@ -142,7 +149,7 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
     if missing:
         raise CheckpointError(f"{path}: checkpoint lacks {', '.join(missing)}; it is damaged, re-run `osvp train`")
     try:
-        NetworkPreset.from_dict(data["preset"])
+        architecture(str(data.get("architecture", DEFAULT_ARCHITECTURE))).parse_preset(data["preset"])
     except (ValueError, TypeError) as exc:
-        raise CheckpointError(f"{path}: bad network preset in checkpoint ({exc})") from None
+        raise CheckpointError(f"{path}: bad network in checkpoint ({exc}); use a checkpoint of this osvp") from None
     return Checkpoint(path=path, data=data)

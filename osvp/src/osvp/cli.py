@@ -17,15 +17,24 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from osvp.architectures import ARCHITECTURES, DEFAULT_ARCHITECTURE, PRESET_NAMES
 from osvp.checkpoint import Checkpoint, load_checkpoint
 from osvp.data import DataError, SampleBank
 from osvp.decoding import Decoding, parse_decoding
 from osvp.loss import DEFAULT_LAMBDA, TARGETS
 from osvp.metrics import decoded_metrics
-from osvp.network import PRESETS
 from osvp.prior import ViewStatePrior
 from osvp.stream import MEMORY_LIMIT_GB, VAL_CAP, choose_streaming
-from osvp.train import EpochReport, TrainOptions, covers_needed, predict_rows, run_rows, train
+from osvp.train import (
+    EpochReport,
+    TrainOptions,
+    case_fields,
+    covers_needed,
+    predict_rows,
+    require_next_view_data,
+    run_rows,
+    train,
+)
 from schemas.errors import DatagenError
 
 PAPER_LAMBDAS = (0.75, 1.0, 1.25, 1.5, 1.75, 2.0)
@@ -64,7 +73,15 @@ def _parser() -> argparse.ArgumentParser:
     def training(sub: argparse.ArgumentParser) -> None:
         common(sub)
         sub.add_argument("--out", type=Path, required=True, help="folder for checkpoints, metrics.csv, curves.png")
-        sub.add_argument("--preset", choices=sorted(PRESETS), default="small")
+        sub.add_argument(
+            "--network",
+            choices=sorted(ARCHITECTURES),
+            default=DEFAULT_ARCHITECTURE,
+            help="osvp: AIR-OSVP's cloud and view-state transformers (with --target gain a PCNBV-style next-best-view "
+            "planner); nbvnet: NBVNet's 3D CNN on the occupancy grid, the best next view as a class; scvp: the same "
+            "CNN with the view state, a one-shot set-cover planner (grid networks need a version-3 dataset)",
+        )
+        sub.add_argument("--preset", choices=PRESET_NAMES, default="small", help="the network's size (default small)")
         sub.add_argument("--epochs", type=int, default=30)
         sub.add_argument(
             "--steps",
@@ -87,11 +104,13 @@ def _parser() -> argparse.ArgumentParser:
         sub.add_argument(
             "--target",
             choices=TARGETS,
-            default="label",
-            help="loss: the stored label's SCLoss (the paper's), or, with a version-2 dataset, the minimum covers' "
-            "marginals, the nearest minimum cover, or the label without punishing other covers' views; 'gain' "
-            "(a version-3 dataset) regresses every view's gain: a next-best-view planner in the manner of PCNBV, "
-            "played step by step by `datagen evaluate` (train it with --source observed, what it sees there)",
+            default="",
+            help="loss (default: the network's best measured one, mincover for osvp and scvp, best_view for nbvnet): "
+            "label is the stored label's SCLoss (the paper's); with a version-2 dataset marginal, mincover (the "
+            "nearest minimum cover) or support (the label without punishing other covers' views); with a version-3 "
+            "dataset gain regresses every view's gain (a PCNBV-style planner, played step by step by `datagen "
+            "evaluate`: train it with --source observed, what it sees there) and best_view classifies the best next "
+            "view (NBVNet's)",
         )
         sub.add_argument(
             "--max-objects",
@@ -119,6 +138,13 @@ def _parser() -> argparse.ArgumentParser:
             metavar="GB",
             help="stream when the samples would need more memory than this (estimated from the index; default "
             "%(default)g)",
+        )
+        sub.add_argument(
+            "--fit-rows",
+            type=int,
+            default=0,
+            help="also score this many training samples (a seeded draw) every epoch: the fit_ columns of "
+            "metrics.csv, how well the network fits its own training data beside the held-out figures (default 0)",
         )
         sub.add_argument("--workers", type=int, default=2, help="DataLoader workers reading shards when streaming")
         sub.add_argument("--shuffle-buffer", type=int, default=4096, help="samples the stream mixes at once")
@@ -172,6 +198,7 @@ def _options(args: argparse.Namespace, out: Path, lambda_: float, resume: bool) 
         data=args.data,
         out=out,
         preset=args.preset,
+        network=args.network,
         lambda_=lambda_,
         epochs=args.epochs,
         steps=args.steps,
@@ -191,20 +218,23 @@ def _options(args: argparse.Namespace, out: Path, lambda_: float, resume: bool) 
         workers=args.workers,
         shuffle_buffer=args.shuffle_buffer,
         val_cap=args.val_cap,
+        fit_rows=args.fit_rows,
     )
 
 
 def _streaming(options: TrainOptions) -> bool:
     """Whether the run streams; says so in one line when it does."""
-    streaming, why = choose_streaming(options.data, options.stream, options.memory_limit_gb, options.source)
+    fields = case_fields(options.architecture)
+    streaming, why = choose_streaming(options.data, options.stream, options.memory_limit_gb, options.source, fields)
     if streaming:
         _note(why)
     return streaming
 
 
-def _load(url: str, source: str = "points", covers_for: str | None = None) -> SampleBank:
+def _load(url: str, source: str = "points", covers_for: str | None = None, fields: Sequence[str] = ()) -> SampleBank:
     started = time.perf_counter()
-    bank = SampleBank.load(url, source, progress=_bar("reading samples"), covers_for=covers_for)  # type: ignore[arg-type]
+    reading = _bar("reading samples")
+    bank = SampleBank.load(url, source, progress=reading, covers_for=covers_for, fields=fields)  # type: ignore[arg-type]
     seconds = time.perf_counter() - started
     _clear()
     _note(f"read {len(bank)} samples in {seconds:.1f} s ({len(bank) / max(seconds, 1e-9):.0f} samples/s)")
@@ -214,8 +244,10 @@ def _load(url: str, source: str = "points", covers_for: str | None = None) -> Sa
 def _train(args: argparse.Namespace) -> int:
     options = _options(args, args.out, args.lambda_, args.resume)
     options.check()
+    require_next_view_data(options)
     streaming = _streaming(options)
-    bank = None if streaming else _load(args.data, args.source, covers_needed(options.target))
+    fields = case_fields(options.architecture)
+    bank = None if streaming else _load(args.data, args.source, covers_needed(options.target), fields)
     options = replace(options, stream=streaming)
     outcome = train(options, on_epoch=_epoch_line, on_batch=_bar("training"), bank=bank)
     figure = SELECTION[outcome.best_metric]
@@ -226,14 +258,14 @@ def _train(args: argparse.Namespace) -> int:
 def _eval(args: argparse.Namespace) -> int:
     checkpoint = load_checkpoint(args.checkpoint)
     decodings = _decodings(args.decoding, checkpoint)
-    bank = _load(args.data, checkpoint.source, covers_needed(checkpoint.target))
+    options = _stored_options(checkpoint, args)
+    bank = _load(args.data, checkpoint.source, covers_needed(checkpoint.target), case_fields(options.architecture))
     checkpoint.require(bank.num_views, args.points)
     same_data = checkpoint.training["config_hash"] == bank.config_hash
     if args.split != "all" and not same_data:
         raise DataError(
             f"--split {args.split} needs the dataset {checkpoint.path} was trained on; give it or use --split all"
         )
-    options = _stored_options(checkpoint, args)
     everything = np.arange(len(bank), dtype=np.int64)
     # The run's own rows on its dataset; on another one (--split all only) every sample, also for the prior.
     train_rows, val_rows = run_rows(bank, options) if same_data else (everything, everything)
@@ -297,6 +329,8 @@ def _stored_options(checkpoint: Checkpoint, args: argparse.Namespace) -> TrainOp
         split=stored["split"],
         val_fraction=float(stored["val_fraction"]),
         target=checkpoint.target,
+        network=checkpoint.architecture.name,
+        preset=checkpoint.preset.name,
         max_objects=stored.get("max_objects"),
         sample_fraction=float(stored.get("sample_fraction", 1.0)),
     )
@@ -312,8 +346,10 @@ def _sweep(args: argparse.Namespace) -> int:
         lambdas = [float(v) for v in args.lambdas.split(",")]
     except ValueError:
         raise DataError(f"--lambdas {args.lambdas!r}: give numbers separated by commas, e.g. 0.75,1.25") from None
-    streaming = _streaming(_options(args, args.out, lambdas[0], False))
-    bank = None if streaming else _load(args.data, args.source, covers_needed(args.target))
+    first = _options(args, args.out, lambdas[0], False)
+    streaming = _streaming(first)
+    needs = covers_needed(first.target)
+    bank = None if streaming else _load(args.data, args.source, needs, case_fields(first.architecture))
     rows = []
     for lambda_ in lambdas:
         out = args.out / f"lambda-{lambda_:g}"

@@ -1,7 +1,8 @@
 """The training record: one CSV row per epoch and the paper's Fig. 5b (validation precision, recall
 and F1, and the losses, against the epoch), drawn headless on matplotlib's Agg canvas. Beside the
 paper's figures: F1 against the nearest minimum cover and the share of predictions covering U
-(threshold 0.5 and the ``size`` decoding), and mean predicted views against the labels'."""
+(threshold 0.5 and the ``size`` decoding), mean predicted views against the labels', the best-view
+accuracy of a next-view target, and the same figures on training rows when the run measures its fit."""
 
 from __future__ import annotations
 
@@ -17,6 +18,11 @@ if TYPE_CHECKING:  # matplotlib is imported only when drawing
 DECODED = ("precision", "recall", "f1", "exact_accuracy", "cover_f1", "cover_exact", "covers_u", "views")
 """Validation columns written for each decoding of an epoch (plain: threshold 0.5; ``size_``: size)."""
 
+NEXT_VIEW = ("best_view_accuracy", "gain_mae")
+"""Validation columns of a next-view target (`osvp.train.next_view_figures`)."""
+FIT = ("f1", "size_cover_f1", "best_view_accuracy")
+"""Columns also measured on a fixed draw of training rows (``fit_`` prefix, ``--fit-rows``): the fit curve."""
+
 COLUMNS = (
     "epoch",
     "train_loss",
@@ -26,6 +32,8 @@ COLUMNS = (
     *(f"size_{key}" for key in DECODED),
     "tuned_threshold",
     "tuned_f1",
+    *NEXT_VIEW,
+    *(f"fit_{key}" for key in FIT),
     "seconds",
     "train_samples_per_s",
     "loader_samples_per_s",
@@ -78,6 +86,9 @@ def draw_curves(path: Path, history: Sequence[dict[str, float]], title: str) -> 
         ("covers_u", "covers U, p > 0.5"),
         ("size_covers_u", "covers U, size"),
         ("tuned_f1", "F1 at the tuned threshold"),
+        ("fit_size_cover_f1", "nearest-cover F1, size, training rows"),
+        ("best_view_accuracy", "best-view accuracy"),
+        ("fit_best_view_accuracy", "best-view accuracy, training rows"),
     ]
     _plot(covers, history, cover_keys, "validation against the minimum covers")
     covers.set_ylim(0.0, 1.0)

@@ -110,16 +110,17 @@ class SampleBank:
         source: Literal["points", "observed"] = "points",
         progress: Callable[[int, int], None] | None = None,
         covers_for: str | None = None,
+        fields: Sequence[str] = (),
     ) -> SampleBank:
         """Read every sample of the dataset at ``url`` (`storage.StorageError` names damage and the fix).
         ``covers_for`` names what needs the minimum covers: a dataset without them is refused before
-        any sample is read."""
+        any sample is read; ``fields`` names optional sample fields to hold too (``grid``)."""
         dataset = storage.open_dataset(url)
         if covers_for is not None and not dataset.has_ambiguity:
             raise no_covers(url, dataset.info.schema_version, covers_for)
         if len(dataset) == 0:
             raise DataError(f"{url}: holds no samples; generate a dataset with `datagen submit` first")
-        return cls.from_memory(load_memory(dataset, source, progress=progress))
+        return cls.from_memory(load_memory(dataset, source, progress=progress, fields=fields))
 
     @classmethod
     def from_memory(cls, samples: MemoryDataset) -> SampleBank:

@@ -10,6 +10,7 @@ the scale only changes the effective learning rate.
 The ``gain`` target trains the same network as a next-best-view planner in the manner of PCNBV:
 every view's share of new surface (a version-3 dataset's ``view_gain``) regressed by the sigmoid of
 its logit, mean squared error (PCNBV sums it; the scale only changes the effective learning rate).
+The ``best_view`` target is NBVNet's: the best next view as a class, cross entropy.
 
 A stored label is one arbitrary minimum cover among many equally good ones (median 9), so SCLoss
 on it punishes a network for predicting another, equally good cover. The other targets
@@ -108,6 +109,20 @@ def gain_loss(logits: torch.Tensor, gains: torch.Tensor) -> torch.Tensor:
     return F.mse_loss(torch.sigmoid(logits), gains.to(logits.dtype))
 
 
+def best_view_loss(logits: torch.Tensor, view_state: torch.Tensor, best_view: torch.Tensor) -> torch.Tensor:
+    """Target ``best_view``: cross entropy of the best next view as a class among the open views
+    (NBVNet's classification; the views taken are masked out, as play never visits them), averaged
+    over the samples that have a next view (``best_view`` >= 0). 0 for a batch with none."""
+    if view_state.shape != logits.shape or best_view.shape != logits.shape[:1]:
+        shapes = f"logits {tuple(logits.shape)}, view state {tuple(view_state.shape)}"
+        raise ValueError(f"{shapes}, best view {tuple(best_view.shape)}: need (batch, views) twice and (batch,)")
+    has_next = best_view >= 0
+    if not bool(has_next.any()):
+        return logits.sum() * 0.0
+    masked = logits.masked_fill(view_state > 0.5, torch.finfo(logits.dtype).min)
+    return F.cross_entropy(masked[has_next], best_view[has_next].long())
+
+
 class TargetBatch(Protocol):
     """What a target reads from a batch (`osvp.data.Batch`)."""
 
@@ -123,6 +138,10 @@ class TargetBatch(Protocol):
     def cover_mask(self) -> torch.Tensor | None: ...
     @property
     def view_gain(self) -> torch.Tensor | None: ...
+    @property
+    def view_state(self) -> torch.Tensor: ...
+    @property
+    def best_view(self) -> torch.Tensor | None: ...
 
 
 TargetLoss = Callable[[torch.Tensor, TargetBatch, float], torch.Tensor]
@@ -187,6 +206,13 @@ def _gain(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Ten
     if batch.view_gain is None:
         raise ValueError("target 'gain' needs every view's gain (a version-3 dataset)")
     return gain_loss(logits, batch.view_gain.to(logits.device))
+
+
+@register_target("best_view", needs_ties=False, since=3)
+def _best_view(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
+    if batch.best_view is None:
+        raise ValueError("target 'best_view' needs every sample's best next view (a version-3 dataset)")
+    return best_view_loss(logits, batch.view_state.to(logits.device), batch.best_view.to(logits.device))
 
 
 TARGETS = tuple(TARGET_REGISTRY)

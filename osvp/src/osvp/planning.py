@@ -6,9 +6,11 @@ sample contract (`storage.samples.resample_cloud`) from a fixed stream, so a sce
 same answer. It is a `schemas.planning.DecodingScorer`:
 `CheckpointScorer.select_views` turns the probabilities into views with the checkpoint's default
 decoding (``osvp:FILE``) or a named one (``osvp+size:FILE``, ``osvp+threshold=0.3:FILE``).
-A checkpoint trained with the ``gain`` target is a next-best-view planner instead (`GainScorer`, a
-`schemas.planning.NextViewScorer`): asked after every view with the cloud observed so far, it
-predicts every view's gain, and ``datagen evaluate`` visits the largest.
+A checkpoint trained with a next-view target (``gain``, ``best_view``) is a next-best-view planner
+instead (`NextViewCheckpointScorer`, a `schemas.planning.NextViewScorer`): asked after every view
+with the cloud and the grid observed so far, it scores every view, and ``datagen evaluate`` visits
+the best. A checkpoint of a grid network (``nbvnet``, ``scvp``) reads the occupancy grid the
+evaluation builds (``uses_grid``) instead of the cloud.
 `load_scorer` is the `schemas.planning.ScorerFactory` osvp registers as entry point ``osvp`` of the
 group ``datagen.planners`` (pyproject.toml), through which ``datagen evaluate`` finds it.
 """
@@ -37,6 +39,8 @@ class CheckpointScorer(DecodingScorer):
         self.checkpoint = checkpoint
         self.device = device
         self.network = checkpoint.network(device)
+        self.uses_grid = checkpoint.architecture.reads == "grid"
+        """A grid network: ``datagen evaluate`` passes the input views' occupancy grid."""
         self.source = checkpoint.source
         """Which cloud the network was trained on: 'points' (refined) or 'observed' (sparse)."""
         self.tuned_threshold = checkpoint.tuned_threshold
@@ -47,17 +51,23 @@ class CheckpointScorer(DecodingScorer):
         """Decoding names this checkpoint accepts (``tuned`` only when it holds a tuned threshold)."""
 
     def view_probabilities(
-        self, points: npt.NDArray[np.float32], view_state: npt.NDArray[np.float32]
+        self,
+        points: npt.NDArray[np.float32],
+        view_state: npt.NDArray[np.float32],
+        grid: npt.NDArray[np.float32] | None = None,
     ) -> npt.NDArray[np.float64]:
         state = np.asarray(view_state, dtype=np.float32).reshape(-1)
         self.checkpoint.require(state.size, what="the planner's view space")
-        cloud = np.asarray(points, dtype=np.float32).reshape(-1, 3)
-        # the sample contract's resampling, from a stream of the scene's own (its point count)
-        cloud = resample_cloud(cloud, self.checkpoint.num_points, (PLANNING_SEED, cloud.shape[0]))
+        if self.uses_grid:
+            if grid is None:
+                raise ValueError(f"{self.checkpoint.path}: a grid network needs the occupancy grid of its views")
+            case = np.asarray(grid, dtype=np.float32)[None]
+        else:
+            cloud = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+            # the sample contract's resampling, from a stream of the scene's own (its point count)
+            case = resample_cloud(cloud, self.checkpoint.num_points, (PLANNING_SEED, cloud.shape[0]))[None]
         with torch.no_grad():
-            logits = self.network(
-                torch.from_numpy(cloud)[None].to(self.device), torch.from_numpy(state)[None].to(self.device)
-            )
+            logits = self.network(torch.from_numpy(case).to(self.device), torch.from_numpy(state)[None].to(self.device))
         return torch.sigmoid(logits)[0].double().cpu().numpy()
 
     def select_views(
@@ -70,26 +80,26 @@ class CheckpointScorer(DecodingScorer):
         return select_views(p, np.asarray(view_state, dtype=np.float32).reshape(-1), chosen)
 
 
-class GainScorer:
-    """A ``gain`` checkpoint as a next-best-view scorer: every view's predicted share of new surface
-    for the cloud and view state observed so far (the same network and resampling as
-    `CheckpointScorer`)."""
-
-    uses_grid = False
+class NextViewCheckpointScorer:
+    """A checkpoint of a next-view target as a next-best-view scorer: every view's predicted gain
+    share (``gain``, PCNBV's manner) or class probability (``best_view``, NBVNet's; a sigmoid of its
+    logit, which ranks the views as the softmax does) for what has been observed so far (the same
+    network and resampling as `CheckpointScorer`)."""
 
     def __init__(self, checkpoint: Checkpoint, device: str = "cpu") -> None:
         self.predict = CheckpointScorer(checkpoint, device)
+        self.uses_grid = self.predict.uses_grid
 
     def next_view_scores(self, observation: NextViewObservation) -> npt.NDArray[np.float64]:
-        return self.predict.view_probabilities(observation.cloud, observation.view_state)
+        return self.predict.view_probabilities(observation.cloud, observation.view_state, observation.grid)
 
 
-def load_scorer(path: str | Path, device: str = "cpu") -> CheckpointScorer | GainScorer:
+def load_scorer(path: str | Path, device: str = "cpu") -> CheckpointScorer | NextViewCheckpointScorer:
     """The scorer of an `osvp train` checkpoint (`CheckpointError` names what is wrong with the file):
-    a one-shot `CheckpointScorer`, or a `GainScorer` for a checkpoint of a next-view target."""
+    a one-shot `CheckpointScorer`, or a `NextViewCheckpointScorer` for a checkpoint of a next-view target."""
     checkpoint = load_checkpoint(path)
     if checkpoint.target in NEXT_VIEW_TARGETS:
-        return GainScorer(checkpoint, device)
+        return NextViewCheckpointScorer(checkpoint, device)
     return CheckpointScorer(checkpoint, device)
 
 

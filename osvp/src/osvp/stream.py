@@ -16,7 +16,7 @@ resamples from its dataset row's stream (seed, epoch, row), so a streamed batch 
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from typing import Literal
 
 import numpy as np
@@ -26,6 +26,7 @@ import torch
 import storage
 from osvp.data import Batch, DataError, SampleBank, no_covers
 from storage.memory import load_index_facts, load_memory
+from storage.occupancy import GRID_CELLS
 from storage.stream import ShardStream
 
 GB = 1e9
@@ -37,10 +38,13 @@ POINT_BYTES = 6
 """A stored point: three int16 key coordinates."""
 
 
-def memory_estimate(dataset: storage.Dataset, source: Literal["points", "observed"] = "points") -> int:
+def memory_estimate(
+    dataset: storage.Dataset, source: Literal["points", "observed"] = "points", fields: Sequence[str] = ()
+) -> int:
     """Bytes a `SampleBank` of the whole dataset holds: every key, its offsets, view state and label
     rows, and with covers their support, marginals and listed covers (from the index's counts; the
-    listing is capped by the config's ``label_cover_cap``). Loading it briefly needs up to twice the keys."""
+    listing is capped by the config's ``label_cover_cap``), and each case's grid when ``fields`` asks
+    for it. Loading it briefly needs up to twice the keys."""
     column = "num_points" if source == "points" else "num_observed"
     points = int(dataset.index.column(column).to_numpy().astype(np.int64).sum())
     samples, width = len(dataset), dataset.num_views
@@ -49,17 +53,23 @@ def memory_estimate(dataset: storage.Dataset, source: Literal["points", "observe
         cap = int(dataset.info.config.label_cover_cap)
         listed = np.minimum(dataset.index.column("min_covers").to_numpy().astype(np.int64), cap)
         total += samples * (2 * 4 * width + 8 + 8 + 1) + int(listed.sum()) * 8
+    if "grid" in fields:
+        total += samples * GRID_CELLS * 4
     return total
 
 
 def choose_streaming(
-    url: str, stream: bool | None, memory_limit_gb: float, source: Literal["points", "observed"] = "points"
+    url: str,
+    stream: bool | None,
+    memory_limit_gb: float,
+    source: Literal["points", "observed"] = "points",
+    fields: Sequence[str] = (),
 ) -> tuple[bool, str]:
     """(stream?, the line that says why) for ``osvp train``: ``stream`` True or False decides; None
     streams when `memory_estimate` exceeds the limit."""
     if stream is not None:
         return stream, "streaming the training samples (--stream)" if stream else ""
-    needed = memory_estimate(storage.open_dataset(url), source)
+    needed = memory_estimate(storage.open_dataset(url), source, fields)
     if needed > memory_limit_gb * GB:
         return True, (
             f"streaming the training samples: in memory they need about {needed / GB:.1f} GB, over --memory-limit "
@@ -93,11 +103,14 @@ def cap_rows(rows: npt.NDArray[np.int64], cap: int, seed: int) -> npt.NDArray[np
 
 
 def rows_bank(
-    dataset: storage.Dataset, rows: npt.NDArray[np.int64], source: Literal["points", "observed"] = "points"
+    dataset: storage.Dataset,
+    rows: npt.NDArray[np.int64],
+    source: Literal["points", "observed"] = "points",
+    fields: Sequence[str] = (),
 ) -> SampleBank:
     """The samples ``rows`` in memory, with their minimum covers (position p is dataset row
     ``rows[p]``, and resamples from that row's stream, as in a whole load)."""
-    return SampleBank.from_memory(load_memory(dataset, source, rows=rows))
+    return SampleBank.from_memory(load_memory(dataset, source, rows=rows, fields=fields))
 
 
 class StreamedRows:
@@ -115,6 +128,7 @@ class StreamedRows:
         workers: int = 2,
         shuffle_buffer: int = 4096,
         pin_memory: bool = False,
+        fields: Sequence[str] = (),
     ) -> None:
         self.stream = ShardStream(
             dataset,
@@ -125,6 +139,7 @@ class StreamedRows:
             seed=seed,
             shuffle_buffer=shuffle_buffer,
             covers=covers,
+            fields=fields,
             num_workers=workers,
             rank=0,
             world_size=1,

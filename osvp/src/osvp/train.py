@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -35,11 +35,14 @@ from typing import Any, Literal
 import numpy as np
 import numpy.typing as npt
 import torch
+from torch import nn
 
+import storage
+from osvp.architectures import ARCHITECTURES, DEFAULT_ARCHITECTURE, Architecture, architecture
 from osvp.checkpoint import VERSION as CHECKPOINT_VERSION
 from osvp.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
 from osvp.covers import CoverBank
-from osvp.curves import draw_curves, write_metrics_csv
+from osvp.curves import FIT, draw_curves, write_metrics_csv
 from osvp.data import (
     Batch,
     DataError,
@@ -53,7 +56,6 @@ from osvp.data import (
 from osvp.decoding import PAPER_THRESHOLD, Decoding
 from osvp.loss import AMBIGUITY_TARGETS, DEFAULT_LAMBDA, NEXT_VIEW_TARGETS, TARGETS, target_loss
 from osvp.metrics import decoded_metrics, tune_threshold
-from osvp.network import PRESETS, OSVPNetwork, build_network
 from osvp.stream import (
     MEMORY_LIMIT_GB,
     VAL_CAP,
@@ -83,6 +85,8 @@ class TrainOptions:
     data: str
     out: Path
     preset: str = "small"
+    network: str = DEFAULT_ARCHITECTURE
+    """The architecture (`osvp.architectures.ARCHITECTURES`): ``osvp``, ``nbvnet`` or ``scvp``."""
     lambda_: float = DEFAULT_LAMBDA
     epochs: int = 30
     batch_size: int = 32
@@ -96,8 +100,10 @@ class TrainOptions:
     val_fraction: float = 0.2
     source: Literal["points", "observed"] = "points"
     resume: bool = False
-    target: str = "label"
-    """The loss (`osvp.loss.TARGETS`); all but ``label`` need a version-2 dataset."""
+    target: str = ""
+    """The loss (`osvp.loss.TARGETS`); empty: the network's default (`Architecture.default_target`,
+    ``mincover`` for ``osvp``), filled in on construction. All but ``label`` need a version-2
+    dataset, ``gain`` and ``best_view`` a version-3 one."""
     max_objects: int | None = None
     """Train on this many of the training side's objects (a seeded, nested draw); None: all."""
     sample_fraction: float = 1.0
@@ -114,6 +120,9 @@ class TrainOptions:
     """Samples the stream mixes at once."""
     val_cap: int = VAL_CAP
     """When streaming: validate on at most this many of the validation rows (a seeded draw; 0: all)."""
+    fit_rows: int = 0
+    """Also score this many training rows (a seeded draw) every epoch, the ``fit_`` columns: how well
+    the network fits what it trains on, beside the held-out figures (0: none)."""
 
     def for_samples(self, train_samples: int) -> TrainOptions:
         """The options for a training set of ``train_samples``: with `steps`, as many epochs as give
@@ -124,10 +133,26 @@ class TrainOptions:
         epochs = max(1, math.ceil(self.steps * self.batch_size / max(train_samples, 1)))
         return replace(self, epochs=epochs, lr_step=max(1, math.ceil(0.8 * epochs)))
 
+    @property
+    def architecture(self) -> Architecture:
+        return architecture(self.network)
+
+    @property
+    def num_points(self) -> int:
+        """Points per cloud in a batch (one for a grid network, which reads none)."""
+        return self.architecture.preset(self.preset).num_points
+
+    def __post_init__(self) -> None:
+        if not self.target and self.network in ARCHITECTURES:
+            object.__setattr__(self, "target", self.architecture.default_target)
+
     def check(self) -> None:
-        if self.preset not in PRESETS:
-            raise DataError(f"unknown preset {self.preset!r}; choose {', '.join(sorted(PRESETS))}")
-        if self.target not in TARGETS:
+        if self.network not in ARCHITECTURES:
+            raise DataError(f"unknown network {self.network!r}; choose {', '.join(sorted(ARCHITECTURES))}")
+        presets = self.architecture.presets
+        if self.preset not in presets:
+            raise DataError(f"unknown preset {self.preset!r}; choose {', '.join(sorted(presets))}")
+        if self.target and self.target not in TARGETS:
             raise DataError(f"unknown target {self.target!r}; choose {', '.join(TARGETS)}")
         if self.max_objects is not None and self.max_objects < 1:
             raise DataError(f"max objects {self.max_objects} must be >= 1")
@@ -146,6 +171,8 @@ class TrainOptions:
         for name, value, least in (("workers", self.workers, 0), ("shuffle buffer", self.shuffle_buffer, 1)):
             if value < least:
                 raise DataError(f"{name} {value} must be >= {least}")
+        if self.fit_rows < 0:
+            raise DataError(f"fit rows {self.fit_rows} must be >= 0 (0: none)")
         if self.val_cap < 0:
             raise DataError(f"validation cap {self.val_cap} must be >= 0 (0: every validation sample)")
         if self.device.startswith("cuda") and not torch.cuda.is_available():
@@ -158,7 +185,9 @@ class TrainOptions:
     def identity(self) -> dict[str, Any]:
         """What a resumed run must share with the run it continues."""
         data = asdict(self)
-        for free in ("out", "resume", "epochs", "device", "memory_limit_gb"):
+        if self.network == DEFAULT_ARCHITECTURE:  # what runs before architectures existed recorded
+            data.pop("network")
+        for free in ("out", "resume", "epochs", "device", "memory_limit_gb", "fit_rows"):
             data.pop(free)
         if not self.stream:  # in memory: what runs before streaming existed recorded
             for unused in ("stream", "workers", "shuffle_buffer", "val_cap"):
@@ -245,22 +274,25 @@ def train(
     """Train (or resume) into ``options.out``: last.pt, best.pt, metrics.csv, curves.png."""
     options.check()
     needs = covers_needed(options.target)
+    fields = case_fields(options.architecture)
+    require_next_view_data(options, bank.schema_version if bank is not None else None)
     streamed: StreamedRows | None = None
+    dataset: storage.Dataset | None = None
     streaming = options.stream if bank is None or options.stream else False
     if streaming is None:
-        streaming = choose_streaming(options.data, None, options.memory_limit_gb, options.source)[0]
+        streaming = choose_streaming(options.data, None, options.memory_limit_gb, options.source, fields)[0]
     options = replace(options, stream=streaming)
     if streaming:
         dataset = open_dataset(options.data, needs)
         bank = index_bank(dataset, options.source)
         train_rows, val_rows = run_rows(bank, options)
         # Validation in memory: its rows only (a bank of their own, position p = row val_rows[p]).
-        val_bank = rows_bank(dataset, cap_rows(val_rows, options.val_cap, options.seed), options.source)
+        val_bank = rows_bank(dataset, cap_rows(val_rows, options.val_cap, options.seed), options.source, fields)
         val_rows = np.arange(len(val_bank), dtype=np.int64)
         streamed = StreamedRows(
             dataset,
             train_rows,
-            PRESETS[options.preset].num_points,
+            options.num_points,
             options.batch_size,
             options.seed,
             options.source,
@@ -268,23 +300,19 @@ def train(
             workers=options.workers,
             shuffle_buffer=options.shuffle_buffer,
             pin_memory=options.device.startswith("cuda"),
+            fields=fields,
         )
     else:
-        bank = val_bank = bank or SampleBank.load(options.data, options.source, covers_for=needs)
+        bank = val_bank = bank or SampleBank.load(options.data, options.source, covers_for=needs, fields=fields)
     if needs is not None:
         require_covers(val_bank, needs)
-    if options.target in NEXT_VIEW_TARGETS and val_bank.schema_version < 3:
-        raise DataError(
-            f"target {options.target!r} needs every view's gain, which a version-{val_bank.schema_version} dataset "
-            f"lacks; add it with `datagen shards relabel {options.data} --out NEW_URL` (no re-imaging)"
-        )
     if streamed is None:
         train_rows, val_rows = run_rows(bank, options)
     options = options.for_samples(len(train_rows))
+    fit = fit_probe(dataset, bank, train_rows, options, fields)
     train_objects = len({bank.object_ids[i] for i in train_rows.tolist()})
     val_covers = val_bank.covers.take(val_rows) if val_bank.covers is not None else None
-    preset = PRESETS[options.preset]
-    network, optimiser, scheduler, start, history, best = _start(options, bank, preset.num_points)
+    network, optimiser, scheduler, start, history, best = _start(options, bank, options.num_points)
     metric = selection_metric(val_bank, options.target)
     best_score = max((row[metric] for row in history), default=-1.0)
     for epoch in range(start, options.epochs):
@@ -293,8 +321,10 @@ def train(
         train_loss, loading = _train_epoch(network, optimiser, batches, len(train_rows), options, epoch, on_batch)
         scheduler.step()
         spent = time.perf_counter() - started
-        val_loss, probabilities = predict_rows(network, val_bank, val_rows, preset.num_points, options)
+        val_loss, probabilities = predict_rows(network, val_bank, val_rows, options.num_points, options)
         figures, tuned = validation_figures(val_bank, val_rows, probabilities, val_covers, options.target)
+        if fit is not None:
+            figures |= fit_figures(network, fit, options)
         row = {
             "epoch": epoch + 1,
             "train_loss": train_loss,
@@ -314,11 +344,46 @@ def train(
             save_checkpoint(options.out / BEST, state)
         save_checkpoint(options.out / LAST, state)
         write_metrics_csv(options.out / "metrics.csv", history)
-        title = f"osvp {options.preset}, target {options.target}, lambda {options.lambda_}"
+        title = f"{options.network} {options.preset}, target {options.target}, lambda {options.lambda_}"
         draw_curves(options.out / "curves.png", history, title)
         if on_epoch:
             on_epoch(EpochReport(epoch + 1, options.epochs, row, improved))
     return TrainOutcome(options.out, best_score, metric, best, options.epochs, history)
+
+
+@dataclass(frozen=True)
+class FitProbe:
+    """The training rows a run also scores every epoch (``fit_rows``), in a bank of their own."""
+
+    bank: SampleBank
+    rows: npt.NDArray[np.int64]
+    covers: CoverBank | None
+
+
+def fit_probe(
+    dataset: storage.Dataset | None,
+    bank: SampleBank,
+    train_rows: npt.NDArray[np.int64],
+    options: TrainOptions,
+    fields: Sequence[str],
+) -> FitProbe | None:
+    """A seeded draw of ``fit_rows`` training rows (None when 0); read apart when streaming (``dataset``)."""
+    if options.fit_rows <= 0:
+        return None
+    chosen = cap_rows(train_rows, options.fit_rows, options.seed + 1)
+    if dataset is not None:
+        held = rows_bank(dataset, chosen, options.source, fields)
+        chosen = np.arange(len(held), dtype=np.int64)
+    else:
+        held = bank
+    return FitProbe(held, chosen, held.covers.take(chosen) if held.covers is not None else None)
+
+
+def fit_figures(network: nn.Module, fit: FitProbe, options: TrainOptions) -> dict[str, float]:
+    """The `osvp.curves.FIT` figures of the network on the probe's training rows, ``fit_`` prefixed."""
+    _, probabilities = predict_rows(network, fit.bank, fit.rows, options.num_points, options)
+    figures, _ = validation_figures(fit.bank, fit.rows, probabilities, fit.covers, options.target)
+    return {f"fit_{key}": figures[key] for key in FIT if key in figures}
 
 
 def validation_figures(
@@ -332,7 +397,9 @@ def validation_figures(
     for a next-view target also `next_view_figures`) and the tuned threshold; ``covers``: those of
     ``rows``, in order."""
     state, labels = bank.view_state[rows], bank.labels[rows]
-    figures: dict[str, float] = next_view_figures(bank, rows, probabilities) if target in NEXT_VIEW_TARGETS else {}
+    figures: dict[str, float] = {}
+    if target in NEXT_VIEW_TARGETS:
+        figures = next_view_figures(bank, rows, probabilities, target)
     for prefix, decoding in EPOCH_DECODINGS.items():
         scores = decoded_metrics(probabilities, state, labels, decoding, covers).as_dict()
         figures |= {f"{prefix}{key}": value for key, value in scores.items()}
@@ -341,22 +408,25 @@ def validation_figures(
 
 
 def next_view_figures(
-    bank: SampleBank, rows: npt.NDArray[np.int64], predicted: npt.NDArray[np.float32]
+    bank: SampleBank, rows: npt.NDArray[np.int64], predicted: npt.NDArray[np.float32], target: str = "gain"
 ) -> dict[str, float]:
-    """``best_view_accuracy``: the share of samples with a next view whose largest predicted gain
-    (among the open views, lowest index first) is the stored best next view; ``gain_mae``: the mean
-    absolute error of the predicted gain shares."""
+    """``best_view_accuracy``: the share of samples with a next view whose largest predicted score
+    (among the open views, lowest index first) is the stored best next view; for the ``gain``
+    target also ``gain_mae``: the mean absolute error of the predicted gain shares."""
     fields = bank.samples.fields
     gains, best = fields["view_gain"][rows], fields["best_view"][rows]
     open_views = bank.view_state[rows] < 0.5
     chosen = np.argmax(np.where(open_views, predicted, -np.inf), axis=1)
     has_next = best >= 0
     accuracy = float(np.mean(chosen[has_next] == best[has_next])) if has_next.any() else float("nan")
-    return {"best_view_accuracy": accuracy, "gain_mae": float(np.mean(np.abs(predicted - gains)))}
+    figures = {"best_view_accuracy": accuracy}
+    if target == "gain":
+        figures["gain_mae"] = float(np.mean(np.abs(predicted - gains)))
+    return figures
 
 
 def predict_rows(
-    network: OSVPNetwork,
+    network: nn.Module,
     bank: SampleBank,
     rows: npt.NDArray[np.int64],
     num_points: int,
@@ -378,7 +448,7 @@ def predict_rows(
                 VALIDATION_EPOCH,
                 with_covers=options.target == "mincover",
             )
-            logits = network(batch.points.to(options.device), batch.view_state.to(options.device)).cpu()
+            logits = forward(network, options.architecture, batch, options.device).cpu()
             total += float(target_loss(options.target, logits, batch, options.lambda_)) * len(chosen)
             count += len(chosen)
             found.append(torch.sigmoid(logits).numpy())
@@ -386,17 +456,46 @@ def predict_rows(
     return (total / count if count else float("nan")), probabilities
 
 
+def require_next_view_data(options: TrainOptions, schema_version: int | None = None) -> None:
+    """Refuse, before any sample is read, a next-view target or a grid network on a dataset before
+    version 3 (``schema_version`` None: read from the dataset's record), naming the relabel."""
+    needs = f"target {options.target!r}" if options.target in NEXT_VIEW_TARGETS else ""
+    needs = needs or (f"network {options.network!r}" if case_fields(options.architecture) else "")
+    if not needs:
+        return
+    version = storage.open_dataset(options.data).info.schema_version if schema_version is None else schema_version
+    if version < 3:
+        raise DataError(
+            f"{needs} needs every case's next-view labels and occupancy grid, which a version-{version} dataset "
+            f"lacks; add them with `datagen shards relabel {options.data} --out NEW_URL` (no re-imaging)"
+        )
+
+
+def case_fields(family: Architecture) -> tuple[str, ...]:
+    """The optional sample fields a network of ``family`` reads (the grid), beside the contract's own."""
+    return ("grid",) if family.reads == "grid" else ()
+
+
+def forward(network: nn.Module, family: Architecture, batch: Batch, device: str) -> torch.Tensor:
+    """The network's logits for a batch: its cloud or its grid, as the family reads, and the view state."""
+    case = batch.grid if family.reads == "grid" else batch.points
+    if case is None:
+        raise DataError(f"network {family.name!r} reads each case's {family.reads}, which the batch lacks")
+    logits: torch.Tensor = network(case.to(device), batch.view_state.to(device))
+    return logits
+
+
 def _bank_batches(bank: SampleBank, rows: npt.NDArray[np.int64], options: TrainOptions, epoch: int) -> Iterator[Batch]:
     """An epoch's batches from memory: the rows in a permutation drawn from (seed, epoch, 1)."""
     order = np.random.default_rng(np.random.SeedSequence([options.seed, epoch, 1])).permutation(rows)
-    num_points = PRESETS[options.preset].num_points
+    num_points = options.num_points
     for start in range(0, len(order), options.batch_size):
         rows_now = order[start : start + options.batch_size]
         yield bank.batch(rows_now, num_points, options.seed, epoch, with_covers=options.target == "mincover")
 
 
 def _train_epoch(
-    network: OSVPNetwork,
+    network: nn.Module,
     optimiser: torch.optim.Optimizer,
     batches: Iterator[Batch],
     samples: int,
@@ -414,7 +513,7 @@ def _train_epoch(
             loading += time.perf_counter() - clock
             if batch is None:
                 break
-            logits = network(batch.points.to(options.device), batch.view_state.to(options.device))
+            logits = forward(network, options.architecture, batch, options.device)
             loss = target_loss(options.target, logits, batch, options.lambda_)
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
@@ -429,7 +528,7 @@ def _train_epoch(
 
 def _start(
     options: TrainOptions, bank: SampleBank, num_points: int
-) -> tuple[OSVPNetwork, torch.optim.Optimizer, Any, int, list[dict[str, float]], int]:
+) -> tuple[nn.Module, torch.optim.Optimizer, Any, int, list[dict[str, float]], int]:
     """A fresh network, or the state of ``last.pt`` when resuming."""
     last = options.out / LAST
     if last.exists() and not options.resume:
@@ -458,13 +557,14 @@ def _start(
         scheduler.load_state_dict(checkpoint.data["scheduler"])
         return network, optimiser, scheduler, checkpoint.epoch, list(stored["history"]), int(stored["best_epoch"])
     with seeded_torch(stream_seed(options.seed, 0, 0), "cpu"):
-        network = build_network(options.preset, bank.num_views)
+        family = options.architecture
+        network = family.build(family.preset(options.preset), bank.num_views)
     network = network.to(options.device)
     optimiser, scheduler = _optimiser(network, options)
     return network, optimiser, scheduler, 0, [], 0
 
 
-def _optimiser(network: OSVPNetwork, options: TrainOptions) -> tuple[torch.optim.Optimizer, Any]:
+def _optimiser(network: nn.Module, options: TrainOptions) -> tuple[torch.optim.Optimizer, Any]:
     optimiser = torch.optim.AdamW(network.parameters(), lr=options.lr, weight_decay=options.weight_decay)
     scheduler = torch.optim.lr_scheduler.StepLR(optimiser, step_size=options.lr_step, gamma=0.5)
     return optimiser, scheduler
@@ -473,13 +573,14 @@ def _optimiser(network: OSVPNetwork, options: TrainOptions) -> tuple[torch.optim
 def _state(
     options: TrainOptions,
     bank: SampleBank,
-    network: OSVPNetwork,
+    network: nn.Module,
     optimiser: torch.optim.Optimizer,
     scheduler: Any,
     record: RunRecord,
 ) -> dict[str, Any]:
-    preset = PRESETS[options.preset]
+    preset = options.architecture.preset(options.preset)
     return {
+        "architecture": options.network,
         "preset": preset.as_dict(),
         "num_views": bank.num_views,
         "num_points": preset.num_points,
