@@ -46,7 +46,9 @@ def evaluate(
                 "A plugin's scorer is played one-shot (its views taken at once) or, when it is a next-best-view "
                 "scorer, step by step: asked again after every view with the cloud, occupancy grid and view "
                 "state observed so far, visiting its best open view, for 10 views in all or --budget-views K, "
-                "or until every open view scores 0. Repeat for several."
+                "or until every open view scores 0. With osvp: a checkpoint of --target gain (PCNBV-style) or "
+                "--network nbvnet (NBVNet-style) plays step by step; one of a cover target (osvp, or --network "
+                "scvp on the occupancy grid) plays one shot. Repeat for several."
             ),
         ),
     ],
