@@ -109,3 +109,17 @@ def test_user_errors_are_one_line(
     assert len(err) == 1 and err[0].startswith("error: ")
     if needle:
         assert needle in err[0]
+
+
+def test_a_grid_network_trains_and_evaluates_from_the_command_line(
+    dataset_url: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`--network nbvnet` (its default target: the best next view) prints its best-view accuracy every
+    epoch, its training fit with --fit-rows, and `osvp eval` reads the grids its checkpoint needs."""
+    out = tmp_path / "nbvnet"
+    args = ["train", "--data", dataset_url, "--out", str(out), "--epochs", "1", "--network", "nbvnet"]
+    assert main([*args, "--fit-rows", "16"]) == 0
+    err = capsys.readouterr().err
+    assert "epoch 1/1" in err and " best view " in err and "gain error" not in err
+    assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["target"] == "best_view"

@@ -370,11 +370,10 @@ def _epoch_line(report: EpochReport) -> None:
     row = report.row
     covers = f" cover F1 {row['cover_f1']:.3f} covers U {row['covers_u']:.3f}" if "cover_f1" in row else ""
     size = f" cover F1 {row['size_cover_f1']:.3f}" if "size_cover_f1" in row else f" F1 {row['size_f1']:.3f}"
-    gains = (
-        f" best view {row['best_view_accuracy']:.3f} gain error {row['gain_mae']:.4f};"
-        if "best_view_accuracy" in row
-        else ""
-    )
+    gains = f" best view {row['best_view_accuracy']:.3f}" if "best_view_accuracy" in row else ""
+    gains += f" gain error {row['gain_mae']:.4f}" if "gain_mae" in row else ""
+    gains += f" fit F1 {row['fit_size_cover_f1']:.3f}" if "fit_size_cover_f1" in row else ""
+    gains += ";" if gains else ""
     _clear()
     _note(
         f"epoch {report.epoch}/{report.epochs}: loss {row['train_loss']:.4f} val {row['val_loss']:.4f}{gains} "
