@@ -216,7 +216,9 @@ def test_a_grid_network_needs_a_version_3_dataset(v1_dataset_url: str, tmp_path:
 
 
 def test_the_default_target_is_each_networks_best_measured_one(tmp_path: Path) -> None:
-    """A plain run trains osvp on the nearest minimum cover (the recipe's measured best), NBVNet on its class."""
-    assert TrainOptions(data="unused", out=tmp_path).target == "mincover"
+    """A plain run trains osvp on the nearest minimum cover at lambda 2 (the recipe's measured best), NBVNet on
+    its class."""
+    plain = TrainOptions(data="unused", out=tmp_path)
+    assert (plain.target, plain.lambda_, plain.network) == ("mincover", 2.0, "osvp")
     assert TrainOptions(data="unused", out=tmp_path, network="nbvnet").target == "best_view"
     assert TrainOptions(data="unused", out=tmp_path, network="scvp", target="label").target == "label"
