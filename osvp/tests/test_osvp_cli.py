@@ -122,4 +122,8 @@ def test_a_grid_network_trains_and_evaluates_from_the_command_line(
     err = capsys.readouterr().err
     assert "epoch 1/1" in err and " best view " in err and "gain error" not in err
     assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt"), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["target"] == "best_view"
+    report = json.loads(capsys.readouterr().out)
+    assert report["target"] == "best_view" and set(report["next_view"]) == {"best_view_accuracy"}
+    assert 0.0 <= report["next_view"]["best_view_accuracy"] <= 1.0
+    assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt")]) == 0
+    assert capsys.readouterr().out.startswith("next-best-view planner (best_view), ")

@@ -21,7 +21,7 @@ from osvp.architectures import ARCHITECTURES, DEFAULT_ARCHITECTURE, PRESET_NAMES
 from osvp.checkpoint import Checkpoint, load_checkpoint
 from osvp.data import DataError, SampleBank
 from osvp.decoding import Decoding, parse_decoding
-from osvp.loss import DEFAULT_LAMBDA, TARGETS
+from osvp.loss import DEFAULT_LAMBDA, NEXT_VIEW_TARGETS, TARGETS
 from osvp.metrics import decoded_metrics
 from osvp.prior import ViewStatePrior
 from osvp.stream import MEMORY_LIMIT_GB, VAL_CAP, choose_streaming
@@ -31,6 +31,7 @@ from osvp.train import (
     TrainOptions,
     case_fields,
     covers_needed,
+    next_view_figures,
     predict_rows,
     require_next_view_data,
     run_rows,
@@ -45,7 +46,8 @@ PRIOR_DECODINGS = ("threshold", "size")
 SELECTION = {
     "size_cover_f1": "F1 (against the nearest minimum cover, size decoding)",
     "f1": "F1 (label bits, p > 0.5)",
-    "best_view_accuracy": "best-view accuracy (the largest predicted gain is the best next view)",
+    "best_view_accuracy": "best-view accuracy (the highest-scored open view is the best next view)",
+    "gain_mae": "mean gain error",
 }
 
 
@@ -293,9 +295,15 @@ def _eval(args: argparse.Namespace) -> int:
         "decodings": network,
         "view_state_prior": baseline,
     }
+    next_view: dict[str, float] = {}
+    if checkpoint.target in NEXT_VIEW_TARGETS:  # a next-best-view planner is judged by its next view
+        next_view = result["next_view"] = next_view_figures(bank, rows, probabilities, checkpoint.target)
     if args.json:
         print(json.dumps(result, indent=1))
         return 0
+    if next_view:
+        figures = ", ".join(f"{SELECTION.get(k, k)} {v:.4f}" for k, v in next_view.items())
+        print(f"next-best-view planner ({checkpoint.target}), {len(rows)} samples: {figures}\n")
     print(
         "| planner | decoding | samples | precision | recall | F1 | exact set | nearest-cover F1 | covers U | views "
         f"| label views | {checkpoint.target} loss |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
