@@ -94,6 +94,10 @@ class ViewSpaceConfig(_Frozen):
 DEFAULT_COVER_CAP = 1024
 """Minimum covers listed per sample by default (schema version 2)."""
 
+LATEST_POCO_VERSION = 2
+"""The newest ``poco_version`` whose labels were judged against version 1's (docs/pipeline.md section
+4.1): what a new config uses unless told."""
+
 FIELDS_ADDED_LATER: dict[str, object] = {
     "label_tie_break": "index",
     "label_cover_cap": DEFAULT_COVER_CAP,
@@ -101,7 +105,16 @@ FIELDS_ADDED_LATER: dict[str, object] = {
     "label_objective": "cover",
 }
 """Fields that enter the hash only when they differ from the value that reproduces what datasets
-made before them hold."""
+made before them hold; a stored config without one reads as that value (`stored_config`)."""
+
+
+def stored_config(data: Any) -> Any:
+    """A config as a dataset or a job recorded it, with the fields it predates filled in with the values
+    that reproduce it (a ``dataset.json`` written before ``poco_version`` existed is version 1, whatever
+    a new config's default is now)."""
+    if isinstance(data, dict):
+        return {**FIELDS_ADDED_LATER, **data}
+    return data
 
 LabelObjective = Literal["cover", "max_coverage", "partial_cover"]
 LABEL_OBJECTIVES: tuple[str, ...] = ("cover", "max_coverage", "partial_cover")
@@ -140,11 +153,13 @@ class GenerationConfig(_Frozen):
     poco_threshold: float = Field(0.65, gt=0.0, lt=1.0, allow_inf_nan=False)
     """p(inside) above which a queried band key is kept (tuned on training shapes)."""
     finetune_steps: int = Field(0, ge=0, le=1000, strict=True)
-    poco_version: int = Field(1, ge=1, le=2, strict=True)
+    poco_version: int = Field(LATEST_POCO_VERSION, ge=1, le=LATEST_POCO_VERSION, strict=True)
     """Which computation of the ``poco`` refiner defines R(O) (`datagen.pipeline.refine.poco.refiner`):
-    1, the original (every dataset made before the field); 2, the decoder's neighbour table from
-    pykdtree instead of scipy's cKDTree, ~13 % less refinement CPU. The two searches break ties
-    between equidistant input points differently, which flips ~1 % of the keys of R(O)."""
+    1, the original (every dataset made before the field, which reads as 1); 2, the decoder's
+    neighbour table from pykdtree instead of scipy's cKDTree, ~13 % less refinement CPU. The two
+    searches break ties between equidistant input points differently, which flips ~1 % of the keys
+    of R(O). A new config takes the newest judged version (`LATEST_POCO_VERSION`); a stored one keeps
+    its own."""
     poisson_depth: int = Field(8, ge=5, le=12, strict=True)
     """Octree depth of the ``poisson`` refiner (2**depth cells across the observed cloud's box)."""
     # Section 5: filter
@@ -249,6 +264,8 @@ class GenerationConfig(_Frozen):
         for name, value in FIELDS_ADDED_LATER.items():
             if data[name] == value:
                 del data[name]  # a dataset made before the field existed keeps its hash
+        if self.refiner != "poco":
+            data.pop("poco_version", None)  # only the poco refiner reads it: other datasets keep their hash
         for name in _DROPPED_UNLESS_USED - set(OBJECTIVE_FIELDS[self.label_objective]):
             del data[name]  # a field the objective does not read changes no sample
         if self.view_space.is_file:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict
+from pydantic import BaseModel, ConfigDict, field_validator
 
-from schemas.config import GenerationConfig
+from schemas.config import GenerationConfig, stored_config
 
 DATASET_FILE = "dataset.json"
 
@@ -24,6 +24,12 @@ class DatasetInfo(BaseModel):
     versions: dict[str, str]
     created: str
     """ISO 8601 time the dataset was first written."""
+
+    @field_validator("config", mode="before")
+    @classmethod
+    def _as_recorded(cls, value: Any) -> Any:
+        """A dataset keeps the config it was made with: fields it predates read as what reproduces it."""
+        return stored_config(value)
 
     @property
     def num_views(self) -> int:

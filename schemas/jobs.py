@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from schemas.config import GenerationConfig
+from schemas.config import GenerationConfig, stored_config
 
 
 class ObjectRef(BaseModel):
@@ -48,3 +48,9 @@ class JobSpec(BaseModel):
     config: GenerationConfig
     tasks: list[TaskSpec]
     line_errors: list[str] = Field(default_factory=list)
+
+    @field_validator("config", mode="before")
+    @classmethod
+    def _as_recorded(cls, value: Any) -> Any:
+        """A job ledgered before a config field existed resumes with the value that reproduces it."""
+        return stored_config(value)

@@ -37,9 +37,11 @@ def init_dataset(location: Location, info: DatasetInfo) -> DatasetInfo:
     if location.exists(DATASET_FILE):
         existing = read_info(location)
         if existing.config_hash != info.config_hash:
+            theirs, ours = existing.config.poco_version, info.config.poco_version
+            hint = f" (it was made with poco_version = {theirs}, this job has {ours}: set it to add to it)"
             raise StorageError(
                 f"{location.url}: holds a dataset of another config (hash {existing.config_hash[:12]}, "
-                f"this job {info.config_hash[:12]}); write to a new --out"
+                f"this job {info.config_hash[:12]}){hint if theirs != ours else ''}; write to a new --out"
             )
         return existing
     location.write_atomic(DATASET_FILE, info.model_dump_json(indent=1).encode())

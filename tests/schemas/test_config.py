@@ -167,8 +167,9 @@ def test_round_trip_keeps_float_bits(tmp_path: Path) -> None:
 def test_fields_added_later_keep_older_hashes_at_their_default(field: str, other: object) -> None:
     """A dataset made before ``label_tie_break`` (its labels are the 'index' rule's),
     ``label_cover_cap`` (version 1: no covers listed), ``poco_version`` (cKDTree) or the label objectives
-    (the paper's cover) existed keeps its hash."""
-    config = GenerationConfig()
+    (the paper's cover) existed keeps its hash. Such a dataset was refined with poco_version 1 (a new
+    config's default is now the newest judged version)."""
+    config = GenerationConfig(poco_version=1)
     data = config.model_dump(mode="json")
     data["poco_weights"] = config.canonical_dict()["poco_weights"]
     later = ("label_tie_break", "label_cover_cap", "poco_version", "label_objective", "label_budget", "label_tau")
@@ -231,7 +232,7 @@ CHANGES = [
     {"poco_preset": "tiny_sv"},
     {"poco_threshold": 0.6},
     {"finetune_steps": 10},
-    {"poco_version": 2},
+    {"poco_version": 1},
     {"poisson_depth": 9},
     {"alpha": 11},
     {"empty_labels": "drop"},
@@ -561,3 +562,30 @@ def test_refiners_that_never_load_the_builtin_weights_keep_their_hash(
     assert [c.config_hash() for c in others] == before
     monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", tmp_path / "gone.pt")
     assert [c.config_hash() for c in others] == before  # not even read
+
+
+def test_a_new_config_takes_the_newest_judged_poco_version_and_a_stored_one_keeps_its_own() -> None:
+    """A fresh config refines with `LATEST_POCO_VERSION`; a dataset.json or a ledgered job written before
+    the field existed reads as version 1 (what made it), and one that records it keeps it."""
+    from schemas.config import LATEST_POCO_VERSION
+    from schemas.dataset import DatasetInfo
+    from schemas.jobs import JobSpec
+
+    assert GenerationConfig().poco_version == LATEST_POCO_VERSION == 2
+    old = GenerationConfig(poco_version=1).model_dump(mode="json")
+    del old["poco_version"]
+    record = {"schema_version": 3, "config": old, "config_hash": "x", "view_positions": [], "versions": {}}
+    assert DatasetInfo.model_validate({**record, "created": "t"}).config.poco_version == 1
+    kept = {**old, "poco_version": 2}
+    assert DatasetInfo.model_validate({**record, "config": kept, "created": "t"}).config.poco_version == 2
+    job = JobSpec.model_validate({"job_id": "j", "objects_file": "f", "out": "o", "config": old, "tasks": []})
+    assert job.config.poco_version == 1
+
+
+def test_poco_version_changes_only_a_poco_datasets_identity() -> None:
+    """Only the poco refiner reads the field: other refiners' datasets keep their hash whatever it says."""
+    for refiner in ("none", "carve", "poisson"):
+        assert config_from_dict({"refiner": refiner, "poco_version": 1}).config_hash() == (
+            config_from_dict({"refiner": refiner, "poco_version": 2}).config_hash()
+        )
+    assert GenerationConfig(poco_version=1).config_hash() != GenerationConfig(poco_version=2).config_hash()
