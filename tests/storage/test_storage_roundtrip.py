@@ -268,3 +268,16 @@ def test_failure_records_round_trip_and_a_later_success_clears_them(tmp_path: Pa
     write_task(location, payload, "retry")
     assert read_commit(location, task_id) is not None
     assert read_failures(location) == []
+
+
+def test_adding_to_a_dataset_of_another_poco_version_names_the_setting(tmp_path: Path) -> None:
+    """A dataset made at poco_version 1 (every one before the field) and a job at the new default: one
+    line that says which setting would add to it."""
+    location = open_location(str(tmp_path / "ds"))
+    made = GenerationConfig(poco_version=1)
+    info = DatasetInfo(**{**fx.dataset_info().model_dump(), "config": made, "config_hash": made.config_hash()})
+    init_dataset(location, info)
+    now = GenerationConfig()
+    job = DatasetInfo(**{**info.model_dump(), "config": now, "config_hash": now.config_hash()})
+    with pytest.raises(StorageError, match=r"made with poco_version = 1, this job has 2: set it to add to it"):
+        init_dataset(location, job)
