@@ -234,6 +234,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--planner", action="append", default=[], help="a trained planner spec (repeatable)")
     parser.add_argument("--name", action="append", default=[], help="SPEC=LABEL: how a planner is named in the tables")
     parser.add_argument("--budget", type=int, default=6, help="Table III: views in all every planner is held to")
+    parser.add_argument("--config", type=Path, help="the evaluation's config (e.g. the training set's poco_version)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, help="write the tables as Markdown here")
     parser.add_argument("--png", type=Path, help="draw coverage against views here")
@@ -247,7 +248,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         report = json.loads(args.report.read_text())
     else:
         with tempfile.TemporaryDirectory() as folder:
-            extra = ["--workers", str(args.workers)]
+            extra = ["--workers", str(args.workers), *(["--config", str(args.config)] if args.config else [])]
             report = unseen(planners_of(args.planner), Path(folder), "tables", fixed_from=args.train, extra=extra)
     if args.json:
         args.json.write_text(json.dumps(report))
