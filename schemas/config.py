@@ -116,6 +116,7 @@ def stored_config(data: Any) -> Any:
         return {**FIELDS_ADDED_LATER, **data}
     return data
 
+
 LabelObjective = Literal["cover", "max_coverage", "partial_cover"]
 LABEL_OBJECTIVES: tuple[str, ...] = ("cover", "max_coverage", "partial_cover")
 OBJECTIVE_FIELDS: dict[str, tuple[str, ...]] = {
