@@ -25,7 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks.planners.runs import run
+from benchmarks.planners.runs import run, write_markdown
 
 DECODING = "size"
 
@@ -83,9 +83,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.png:
         _draw(curves, args.png)
     if args.out:
-        command = "python -m benchmarks.planners.fit_curve " + " ".join(argv if argv is not None else sys.argv[1:])
-        picture = [f"![fit curve]({args.png.name})", ""] if args.png else []
-        args.out.write_text("\n".join([f"Made by `{command}`.", "", *lines, "", *picture]))
+        picture = ["", f"![fit curve]({args.png.name})"] if args.png else []
+        write_markdown(args.out, "benchmarks.planners.fit_curve", argv, [*lines, *picture])
     return 0
 
 

@@ -31,7 +31,7 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
-from benchmarks.planners.runs import pm, unseen
+from benchmarks.planners.runs import pm, unseen, write_markdown
 
 FLOOR = [f"{kind}:{k}" for k in range(2, 7) for kind in ("fixed", "spread", "random")]
 ORACLES = [
@@ -166,8 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ]
     print("\n".join(lines))
     if args.out:
-        command = "python -m benchmarks.planners.label_margin " + " ".join(argv if argv is not None else sys.argv[1:])
-        args.out.write_text("\n".join([f"Made by `{command}`.", "", *lines, ""]))
+        write_markdown(args.out, "benchmarks.planners.label_margin", argv, lines)
     return 0
 
 

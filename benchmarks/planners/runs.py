@@ -126,3 +126,9 @@ def pm(row: dict[str, Any], key: str, decimals: int = 2) -> str:
     if value is None:
         return "-"
     return f"{value:.{decimals}f} ± {spread:.{decimals}f}" if spread is not None else f"{value:.{decimals}f}"
+
+
+def write_markdown(path: Path, module: str, argv: Sequence[str] | None, lines: Sequence[str]) -> None:
+    """``lines`` as a Markdown file headed by the command that made it (``python -m MODULE ARGS``)."""
+    command = f"python -m {module} " + " ".join(argv if argv is not None else sys.argv[1:])
+    path.write_text("\n".join([f"Made by `{command}`.", "", *lines, ""]))

@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.planners.runs import pm, unseen
+from benchmarks.planners.runs import pm, unseen, write_markdown
 
 PAPER = {
     2: [
@@ -262,8 +262,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         lines += ["", f"![coverage against views]({args.png.name})"]
     print("\n".join(lines))
     if args.out:
-        command = "python -m benchmarks.planners.tables " + " ".join(argv if argv is not None else sys.argv[1:])
-        args.out.write_text("\n".join([f"Made by `{command}`.", "", *lines, ""]))
+        write_markdown(args.out, "benchmarks.planners.tables", argv, lines)
     return 0
 
 
