@@ -47,6 +47,9 @@ def test_config_show_prints_default_toml_and_hash(runner: CliRunner) -> None:
     assert lines[0] == f"# config hash: {GenerationConfig().config_hash()}"
     data = tomllib.loads(result.stdout)
     assert GenerationConfig.model_validate(data) == GenerationConfig()
+    from schemas.config import LATEST_POCO_VERSION
+
+    assert data["poco_version"] == LATEST_POCO_VERSION == 2  # a fresh config: the newest judged refiner version
 
 
 def test_config_show_with_a_config(runner: CliRunner, tmp_path: Path) -> None:
