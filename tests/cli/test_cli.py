@@ -13,7 +13,7 @@ from datagen.cli.main import app
 from datagen.config_io import load_config
 from datagen.pipeline.objects.objects_file import read_objects_file
 from datagen.shapes import builtins
-from schemas.config import GenerationConfig
+from schemas.config import LATEST_POCO_VERSION, GenerationConfig
 
 FAST_BUILTIN = "capsule"
 """The quickest built-in to prepare and scan (about 0.1 s for one rotation)."""
@@ -47,8 +47,6 @@ def test_config_show_prints_default_toml_and_hash(runner: CliRunner) -> None:
     assert lines[0] == f"# config hash: {GenerationConfig().config_hash()}"
     data = tomllib.loads(result.stdout)
     assert GenerationConfig.model_validate(data) == GenerationConfig()
-    from schemas.config import LATEST_POCO_VERSION
-
     assert data["poco_version"] == LATEST_POCO_VERSION == 2  # a fresh config: the newest judged refiner version
 
 
