@@ -58,7 +58,7 @@ PAPER = {
         ("AIR-OSVP (one shot)", "90.00 ± 4.57", "5.80 ± 1.03", "1.59 ± 0.19"),
     ],
 }
-"""The AIR-OSVP paper's rows (its Tables II and III, its 10 test objects; ../shared/reference/planner-families.md)."""
+"""The AIR-OSVP paper's rows (its Tables II and III, its 10 test objects), as it prints them."""
 
 CEILINGS = ("oracle", "gain")
 FLOOR_COUNTS = tuple(range(2, 11))
