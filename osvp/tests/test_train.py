@@ -75,7 +75,7 @@ def test_an_existing_run_is_not_overwritten_and_resume_needs_the_same_options(
     with pytest.raises(DataError, match="--resume"):
         train(options(dataset_url, tmp_path / "run"), bank=bank)
     with pytest.raises(CheckpointError, match="other options"):
-        train(options(dataset_url, tmp_path / "run", epochs=2, resume=True, lambda_=2.0), bank=bank)
+        train(options(dataset_url, tmp_path / "run", epochs=2, resume=True, lambda_=1.25), bank=bank)
     with pytest.raises(CheckpointError, match="other options"):
         train(options(dataset_url, tmp_path / "run", epochs=2, resume=True, target="support"), bank=bank)
     with pytest.raises(CheckpointError, match="other options"):

@@ -552,9 +552,9 @@ def _start(
         stored = checkpoint.training
         if stored.get("options") != options.identity() or stored.get("config_hash") != bank.config_hash:
             raise CheckpointError(
-                f"{last}: was trained with other options or data; resume with the same --data, --preset, --lambda, "
-                "--target, --batch-size, --seed, --split, --max-objects and --sample-fraction, streaming as it did "
-                "(with the same --workers, --shuffle-buffer and --val-cap), or start a new --out"
+                f"{last}: was trained with other options or data; resume with the same --data, --network, --preset, "
+                "--lambda, --target, --batch-size, --seed, --split, --max-objects and --sample-fraction, streaming "
+                "as it did (with the same --workers, --shuffle-buffer and --val-cap), or start a new --out"
             )
         network = checkpoint.network(options.device).train()
         optimiser, scheduler = _optimiser(network, options)
