@@ -5,7 +5,9 @@ the integer keys of the chosen samples once (whole shard arrays, the reader's fa
 them packed in one int16 array with offsets, with each sample's view state and label (as masks and
 as 0/1 rows), object id, the dataset's voxel size, grid offset, schema version and stored config
 hash, and, for a version-2 dataset, its minimum covers and U's set-cover rows packed as uint64 masks
-with offsets. `MemoryDataset.batch` then builds fixed-size point clouds by a numpy gather.
+with offsets. `MemoryDataset.batch` then builds fixed-size point clouds by a numpy gather. Asked for
+the occupancy grids (``fields=("grid",)``), it keeps each task's per-view ray cells once (`CaseGrids`,
+a few hundred bytes a sample) and builds a batch's grids when asked, instead of 128 KB per sample.
 
 Every conversion follows the sample contract of `storage.samples`: a sample held at position ``p``
 is resampled from stream ``(seed, epoch, rows[p])``, its row in the dataset it was loaded from, so a
@@ -27,12 +29,15 @@ import numpy.typing as npt
 from schemas.shard import (
     COVER_ROWS,
     COVERS,
+    GRID_HITS,
+    GRID_MISSES,
     LABEL_COLUMN,
     MASKS,
     VIEW_STATE_COLUMN,
     keys_array,
     offsets_array,
 )
+from storage.occupancy import GRID_SIDE, case_grid
 from storage.reader import Dataset, open_dataset
 from storage.samples import (
     SampleBatch,
@@ -49,6 +54,34 @@ Progress = Callable[[int, int], None]
 """Called with (samples read, samples to read) after each shard."""
 MaskArray = npt.NDArray[np.uint64]
 Rows = Sequence[int] | npt.NDArray[np.integer]
+
+
+GRID_FIELD = "grid"
+"""The optional field `load_memory` holds as `CaseGrids` rather than as values per sample."""
+
+
+@dataclass(frozen=True)
+class CaseGrids:
+    """Every held sample's occupancy grid, built on demand from its task's per-view ray cells (the
+    shard's ``grid_hits`` and ``grid_misses``, kept once per task): the same arrays as the registered
+    ``grid`` field (`storage.occupancy.case_grid`) without holding 128 KB per sample."""
+
+    hits: npt.NDArray[np.uint8]
+    """(T, n, PACKED_CELLS) each held task's cells its views' rays end in."""
+    misses: npt.NDArray[np.uint8]
+    """(T, n, PACKED_CELLS) the cells they only cross."""
+    task: npt.NDArray[np.int64]
+    """(S,) the task of each held sample (an index into ``hits``)."""
+    cases: MaskArray
+    """(S,) each held sample's view-state mask: the views its grid holds."""
+
+    def grids(self, positions: npt.NDArray[np.int64]) -> npt.NDArray[np.float32]:
+        """(B, 32, 32, 32) float32 occupancy probabilities of the samples at ``positions``."""
+        found = [
+            case_grid(self.hits[task], self.misses[task], case)
+            for task, case in zip(self.task[positions].tolist(), self.cases[positions].tolist(), strict=True)
+        ]
+        return np.stack(found) if found else np.zeros((0, GRID_SIDE, GRID_SIDE, GRID_SIDE), dtype=np.float32)
 
 
 @dataclass(frozen=True)
@@ -105,7 +138,10 @@ class MemoryDataset:
     covers: PackedCovers | None = None
     """None for a version-1 dataset, or when the load was asked to leave them out."""
     fields: dict[str, npt.NDArray[Any]] = field(default_factory=dict)
-    """(S, ...) values of every registered `storage.samples.SampleField` the dataset has, by name."""
+    """(S, ...) values of every registered `storage.samples.SampleField` the dataset has, by name
+    (the grid excepted: `grids`)."""
+    grids: CaseGrids | None = None
+    """The occupancy grids when the load asked for them; a batch then carries ``grid``."""
 
     def __len__(self) -> int:
         return int(self.rows.size)
@@ -137,6 +173,7 @@ class MemoryDataset:
             label=self.labels[index],
             index=self.rows[index],
             **{name: values[index] for name, values in self.fields.items()},
+            **({GRID_FIELD: self.grids.grids(index)} if self.grids is not None else {}),
         )
 
 
@@ -156,7 +193,7 @@ def load_memory(
         ``rows`` (dataset rows, held in that order) and ``objects`` (object ids or names) choose the
         samples; both given, the rows of those objects; neither, every sample. ``covers=False`` leaves a
         version-2 dataset's minimum covers unread; ``fields`` names optional sample fields to read too
-    (``"grid"``: 128 KB a sample). A damaged dataset is a `StorageError` naming the
+    (``"grid"``: held as `CaseGrids`, built per batch). A damaged dataset is a `StorageError` naming the
         file and the fix (`storage.reader`).
     """
     check_source(source)
@@ -176,7 +213,10 @@ def load_memory(
     pieces: list[tuple[npt.NDArray[np.int64], npt.NDArray[np.int16]]] = []
     cover_pieces: list[tuple[npt.NDArray[np.int64], MaskArray, npt.NDArray[np.int64]]] = []
     universe_pieces: list[tuple[npt.NDArray[np.int64], MaskArray, npt.NDArray[np.int64]]] = []
-    sample_fields = fields_for(found.info.schema_version, fields)
+    sample_fields = [f for f in fields_for(found.info.schema_version, fields) if f.name != GRID_FIELD]
+    with_grids = GRID_FIELD in fields
+    grid_cells: list[tuple[npt.NDArray[np.uint8], npt.NDArray[np.uint8]]] = []
+    grid_task = np.zeros(total, dtype=np.int64)
     field_pieces: dict[str, list[tuple[npt.NDArray[np.int64], npt.NDArray[Any]]]] = {f.name: [] for f in sample_fields}
     done = 0
     for relative in sorted(groups):  # the reader's order: shards by path, samples in index order
@@ -188,6 +228,9 @@ def load_memory(
         pieces.append((positions, keys))
         masks[positions] = shard.array(MASKS)[local][:, [VIEW_STATE_COLUMN, LABEL_COLUMN]]
         these = ShardRows(source, local, shard.array)
+        if with_grids:
+            grid_task[positions] = len(grid_cells)
+            grid_cells.append((np.asarray(shard.array(GRID_HITS)), np.asarray(shard.array(GRID_MISSES))))
         for sample_field in sample_fields:
             field_pieces[sample_field.name].append((positions, sample_field.read(these)))
         if ambiguous:
@@ -219,7 +262,13 @@ def load_memory(
         )
     keys = _place(pieces, offsets, (3,), np.dtype(np.int16))
     held = _held(found, source, chosen, keys, offsets, state_masks, label_masks, packed_covers)
-    return replace(held, fields={name: _in_order(found_pieces, total) for name, found_pieces in field_pieces.items()})
+    grids = None
+    if with_grids:
+        hits = np.stack([h for h, _ in grid_cells]) if grid_cells else np.zeros((0, found.num_views, 0), np.uint8)
+        misses = np.stack([m for _, m in grid_cells]) if grid_cells else hits
+        grids = CaseGrids(hits=hits, misses=misses, task=grid_task, cases=state_masks)
+    found_fields = {name: _in_order(found_pieces, total) for name, found_pieces in field_pieces.items()}
+    return replace(held, fields=found_fields, grids=grids)
 
 
 def load_index_facts(dataset: Dataset, source: Source = "points") -> MemoryDataset:

@@ -191,7 +191,7 @@ def test_grid_networks_train_on_the_grid_and_resume_exactly(network: str, datase
     """NBVNet-style (the best next view as a class) and SCVP-style (the nearest minimum cover) networks
     read each case's occupancy grid through the same loop, checkpoints and resume as osvp's."""
     grids = SampleBank.load(dataset_url, fields=("grid",))
-    assert grids.samples.fields["grid"].shape == (len(grids), 32, 32, 32)
+    assert grids.samples.grids is not None and grids.batch([0, 1], 4, 0, 0).grid.shape == (2, 32, 32, 32)
     straight = train(options(dataset_url, tmp_path / "straight", epochs=2, network=network, fit_rows=20), bank=grids)
     train(options(dataset_url, tmp_path / "resumed", epochs=1, network=network, fit_rows=20), bank=grids)
     train(options(dataset_url, tmp_path / "resumed", epochs=2, network=network, resume=True, fit_rows=20), bank=grids)

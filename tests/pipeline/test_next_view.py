@@ -93,6 +93,10 @@ def test_readers_serve_the_normalised_gains_and_the_best_view(tmp_path: Path) ->
         assert batch.best_view[row] == sample.gains.best_view == best[row]
         grid = batch.grid[row]
         assert grid.shape == (GRID_SIDE,) * 3 and 0.0 < grid.min() <= 0.5 <= grid.max() < 1.0
+        if row % 7 == 0:  # held as per-task ray cells, built per batch: the reader's grid of the sample
+            assert np.array_equal(grid, dataset.next_view(row, grid=True).grid)
+    assert memory.grids is not None and "grid" not in memory.fields
+    assert memory.grids.hits.nbytes + memory.grids.misses.nbytes < len(memory) * GRID_SIDE**3 * 4 / 8
     with pytest.raises(ValueError, match="'voxels' is no sample field"):
         load_memory(dataset, fields=("voxels",))
 

@@ -26,7 +26,7 @@ import torch
 import storage
 from osvp.data import Batch, DataError, SampleBank, no_covers
 from storage.memory import load_index_facts, load_memory
-from storage.occupancy import GRID_CELLS
+from storage.occupancy import PACKED_CELLS
 from storage.stream import ShardStream
 
 GB = 1e9
@@ -43,8 +43,8 @@ def memory_estimate(
 ) -> int:
     """Bytes a `SampleBank` of the whole dataset holds: every key, its offsets, view state and label
     rows, and with covers their support, marginals and listed covers (from the index's counts; the
-    listing is capped by the config's ``label_cover_cap``), and each case's grid when ``fields`` asks
-    for it. Loading it briefly needs up to twice the keys."""
+    listing is capped by the config's ``label_cover_cap``), and each task's ray cells when ``fields``
+    asks for the grids. Loading it briefly needs up to twice the keys."""
     column = "num_points" if source == "points" else "num_observed"
     points = int(dataset.index.column(column).to_numpy().astype(np.int64).sum())
     samples, width = len(dataset), dataset.num_views
@@ -53,8 +53,9 @@ def memory_estimate(
         cap = int(dataset.info.config.label_cover_cap)
         listed = np.minimum(dataset.index.column("min_covers").to_numpy().astype(np.int64), cap)
         total += samples * (2 * 4 * width + 8 + 8 + 1) + int(listed.sum()) * 8
-    if "grid" in fields:
-        total += samples * GRID_CELLS * 4
+    if "grid" in fields:  # each task's per-view ray cells (`storage.memory.CaseGrids`)
+        tasks = len(set(dataset.index.column("shard").to_pylist()))
+        total += tasks * 2 * width * PACKED_CELLS + samples * 16
     return total
 
 
