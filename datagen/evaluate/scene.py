@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from datagen.pipeline.imaging import TaskImaging
+from datagen.pipeline.keys import union_keys
 from datagen.pipeline.objects.prepare import PreparedObject
 from datagen.pipeline.scanning import scan_task
 from datagen.pipeline.viewspace import ViewSpace
@@ -81,7 +82,7 @@ def build_scene(prepared: PreparedObject, rotation: int, config: GenerationConfi
     """Image the object at ``rotation`` from every candidate view, exactly as the generator does."""
     scan = scan_task(prepared, rotation, config, view_space)
     visible = [o.keys for o in scan.observations]
-    reference = np.unique(np.concatenate(visible)) if visible else np.empty(0, dtype=np.int64)
+    reference = union_keys(*visible)
     columns = tuple(np.searchsorted(reference, keys) for keys in visible)
     return Scene(
         prepared=prepared,

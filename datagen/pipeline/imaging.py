@@ -24,7 +24,7 @@ import numpy.typing as npt
 
 from datagen.pipeline.camera import Pose, cone_pixel_rays, inside_image, look_at, max_fitting_radius, project
 from datagen.pipeline.ground_truth import GroundTruth
-from datagen.pipeline.keys import KeyGrid, unpack_keys
+from datagen.pipeline.keys import KeyGrid, union_keys, unpack_keys
 from datagen.pipeline.raycast import RayCaster
 from datagen.pipeline.thread_limits import single_threaded_blas
 from datagen.pipeline.viewspace import ViewSpace
@@ -89,7 +89,7 @@ class Observation:
             points=np.concatenate([o.points for o in ordered])[rows],
             point_views=point_views[rows],
             pixels=np.concatenate([o.pixels for o in ordered])[rows],
-            keys=np.unique(np.concatenate([o.keys for o in ordered])),
+            keys=union_keys(*(o.keys for o in ordered)),
         )
 
 

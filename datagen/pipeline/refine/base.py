@@ -19,7 +19,7 @@ import numpy.typing as npt
 from scipy import ndimage
 
 from datagen.pipeline.imaging import Observation
-from datagen.pipeline.keys import KeyGrid, unpack_keys
+from datagen.pipeline.keys import KeyGrid, union_keys, unpack_keys
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,7 @@ class Refiner(Protocol):
 
 def refined_keys(observation: Observation, refinement: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     """P(O) = keys(O) united with R(O), sorted packed keys."""
-    return np.union1d(observation.keys, refinement)
+    return union_keys(observation.keys, refinement)
 
 
 def band_offsets(radius_sq: int) -> npt.NDArray[np.int64]:
@@ -127,9 +127,9 @@ class ViewBands:
         parts = [entry for entry in kept if entry is not None]
         for digest in digests:
             self._views.move_to_end(digest)
-        if not np.array_equal(np.unique(np.concatenate([keys for keys, _ in parts])), observation.keys):
+        if not np.array_equal(union_keys(*(keys for keys, _ in parts)), observation.keys):
             return band_keys(observation.keys, self.radius_sq)
-        return np.unique(np.concatenate([band for _, band in parts]))
+        return union_keys(*(band for _, band in parts))
 
     def _keep(self, digest: bytes, keys: npt.NDArray[np.int64], band: npt.NDArray[np.int64]) -> None:
         self._views[digest] = (keys, band)
