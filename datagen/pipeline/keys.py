@@ -42,7 +42,7 @@ def union_keys(*key_sets: npt.NDArray[np.int64]) -> KeyArray:
     """The sorted union of sorted packed key sets (``np.union1d`` of them, by `sorted_unique`)."""
     if not key_sets:
         return np.empty(0, dtype=np.int64)
-    return sorted_unique(np.concatenate(key_sets))
+    return np.asarray(sorted_unique(np.concatenate(key_sets)), dtype=np.int64)
 
 
 def points_to_keys(points: npt.ArrayLike, voxel_size: float, grid_offset: npt.ArrayLike) -> KeyArray:
