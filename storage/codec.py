@@ -99,7 +99,11 @@ def _decode_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
             return None  # zarr reads it as the fill value: leave that to zarr
         where = np.unravel_index(number, counts)
         place = tuple(slice(k * step, (k + 1) * step) for k, step in zip(where, inner, strict=True))
-        out[place] = _chunk(data[start : start + size], inner, dtype)
+        target = out[place]
+        if target.flags.c_contiguous:
+            _chunk_into(data[start : start + size], target)  # straight into place: no copy
+        else:
+            target[...] = _chunk(data[start : start + size], inner, dtype)
     return out[whole]
 
 
@@ -120,6 +124,15 @@ def _checked(data: bytes) -> bytes:
     if len(data) < 4 or np.uint32(google_crc32c.value(body)).tobytes() != data[-4:]:
         raise ValueError("checksum mismatch")
     return body
+
+
+def _chunk_into(data: bytes, target: npt.NDArray[Any]) -> None:
+    """One Blosc chunk with its CRC32C decoded into ``target`` (C-contiguous), which it must fill
+    exactly: its size is read from the Blosc header (bytes 4 to 8, little-endian) first."""
+    body = _checked(data)
+    if len(body) < 16 or int.from_bytes(body[4:8], "little") != target.nbytes:
+        raise ValueError("chunk of the wrong size")
+    numcodecs.blosc.decompress(body, target)
 
 
 def _chunk(data: bytes, shape: tuple[int, ...], dtype: np.dtype[Any]) -> npt.NDArray[Any]:

@@ -110,6 +110,11 @@ class Location:
         return bool(self.fs.exists(self.path(relative)))
 
     def read_bytes(self, relative: str) -> bytes:
+        if self.is_local:
+            # The operating system's read directly: fsspec's local cat_file costs ~50 us more a file
+            # (path normalising, a file object of its own), which a reader pays for every array.
+            with open(self.path(relative), "rb") as file:
+                return file.read()
         data = self.fs.cat_file(self.path(relative))
         return bytes(data)
 
