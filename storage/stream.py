@@ -15,10 +15,13 @@ One epoch, for a given (seed, epoch, worker count, world size):
 3. its samples pass a shuffle buffer of ``shuffle_buffer`` samples (each shard's rows permuted on the
    way in; stream ``(seed, epoch, STREAM_TAG, 2, part + 1)``); the order out of the buffer is
    computed from the index alone before any read, which is what makes `skip` cheap and exact;
-4. each cloud is resampled with `storage.samples.resample_keys` from stream (seed, epoch, dataset row
-   index) as it is read, so a sample's tensors equal those of the in-memory path (`osvp.data.SampleBank`)
-   and of `storage.torch.OSVPDataset` for the same seed, epoch and row, whatever the order;
-5. the part yields batches of ``batch_size`` samples (its last one smaller unless ``drop_last``).
+4. each cloud is resampled from stream (seed, epoch, dataset row index) as it is read
+   (`storage.samples.resample_many_keys`: `resample_keys`'s arrays, a shard's streams seeded together),
+   so a sample's tensors equal those of the in-memory path (`osvp.data.SampleBank`) and of
+   `storage.torch.OSVPDataset` for the same seed, epoch and row, whatever the order;
+5. the part yields batches of ``batch_size`` samples (its last one smaller unless ``drop_last``), the
+   tensors of a batch all views of one storage, made in shared memory in a worker: the DataLoader
+   sends one shared-memory segment a batch instead of one a tensor.
 
 Every selected sample is yielded exactly once per epoch across workers and ranks (``drop_last=False``).
 With ``drop_last=True`` every part yields the same number of full batches (the smallest part's), so
@@ -44,6 +47,7 @@ given the same worker count and world size.
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import queue
 import threading
@@ -61,7 +65,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from schemas.shard import COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from storage import samples
 from storage.codec import whole_array
-from storage.covers import cover_marginals
+from storage.covers import listed_marginals
 from storage.location import Location, open_location
 from storage.reader import Dataset, open_dataset
 from storage.shards import ShardReader
@@ -356,29 +360,37 @@ class ShardStream(IterableDataset[Batch]):
 
         keys, offsets = array(keys_array(self.source)), array(offsets_array(self.source))
         masks = array(MASKS)
+        rows = self._rows[shard][needed[self._rows[shard]]]
+        local = self._shard_rows[rows]
+        shard_rows = samples.ShardRows(self.source, local, array)
+        fields = {name: samples.SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
+        # What a sample carries besides its cloud, for all the shard's rows at once.
+        view_states = masks[local, VIEW_STATE_COLUMN].tolist()
+        labels = masks[local, LABEL_COLUMN].tolist()
+        starts, ends = offsets[local].tolist(), offsets[local + 1].tolist()
         if self.ambiguous:
             covers, cover_offsets = array(COVERS), array(offsets_array(COVERS))
-        rows = self._rows[shard][needed[self._rows[shard]]]
-        shard_rows = samples.ShardRows(self.source, self._shard_rows[rows], array)
-        fields = {name: samples.SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
+            marginals = listed_marginals(covers, cover_offsets, local, self.num_views).astype(np.float32)
+            cover_starts, cover_ends = cover_offsets[local].tolist(), cover_offsets[local + 1].tolist()
+        listed_rows = rows.tolist()
+        clouds = [keys[start:end] for start, end in zip(starts, ends, strict=True)]
+        resampled = samples.resample_many_keys(clouds, self.num_points, self.seed, epoch, listed_rows)
         out: dict[int, _Prepared] = {}
-        for slot, row in enumerate(rows.tolist()):
-            local = int(self._shard_rows[row])
-            cloud = keys[offsets[local] : offsets[local + 1]]
-            listed = covers[cover_offsets[local] : cover_offsets[local + 1]] if self.ambiguous else None
+        for slot, row in enumerate(listed_rows):
             out[row] = _Prepared(
-                keys=samples.resample_keys(cloud, self.num_points, self.seed, epoch, row),
-                view_state=int(masks[local, VIEW_STATE_COLUMN]),
-                label=int(masks[local, LABEL_COLUMN]),
-                covers=listed,
-                marginals=cover_marginals(listed, self.num_views).astype(np.float32) if listed is not None else None,
+                keys=resampled[slot],
+                view_state=view_states[slot],
+                label=labels[slot],
+                covers=covers[cover_starts[slot] : cover_ends[slot]] if self.ambiguous else None,
+                marginals=marginals[slot] if self.ambiguous else None,
                 fields={name: values[slot] for name, values in fields.items()},
             )
         return out
 
     def _batch(self, rows: npt.NDArray[np.int64], prepared: list[_Prepared]) -> Batch:
+        """The batch of ``prepared`` (dataset rows ``rows``), every tensor a view of one storage (see
+        `_one_storage`)."""
         width = self.num_views
-        keys = np.stack([s.keys for s in prepared])
         extra: dict[str, npt.NDArray[Any]] = {}
         if self._support is not None:
             extra["marginals"] = np.stack([s.marginals for s in prepared if s.marginals is not None])
@@ -388,14 +400,53 @@ class ShardStream(IterableDataset[Batch]):
             extra["covers"], extra["cover_mask"] = samples.padded_covers(listed, width)
         for name in self.field_names:
             extra[name] = np.stack([s.fields[name] for s in prepared])
-        batch: samples.SampleBatch[npt.NDArray[Any]] = samples.SampleBatch(
-            points=samples.key_centres(keys, self.voxel_size, self.grid_offset),
-            view_state=samples.bit_rows(np.array([s.view_state for s in prepared], dtype=np.uint64), width),
-            label=samples.bit_rows(np.array([s.label for s in prepared], dtype=np.uint64), width),
-            index=rows.astype(np.int64, copy=True),
+        small: dict[str, npt.NDArray[Any]] = {
+            "view_state": samples.bit_rows(np.array([s.view_state for s in prepared], dtype=np.uint64), width),
+            "label": samples.bit_rows(np.array([s.label for s in prepared], dtype=np.uint64), width),
+            "index": rows.astype(np.int64, copy=True),
             **extra,
-        )
-        return batch.tensors()
+        }
+        keys = np.stack([s.keys for s in prepared])
+        layout = {"points": (keys.shape, np.dtype(np.float32))} | {k: (v.shape, v.dtype) for k, v in small.items()}
+        tensors, arrays = _one_storage(layout, shared=get_worker_info() is not None)
+        samples.key_centres(keys, self.voxel_size, self.grid_offset, out=arrays["points"])
+        for name, values in small.items():
+            arrays[name][...] = values
+        return samples.SampleBatch(**tensors)
+
+
+def _one_storage(
+    layout: dict[str, tuple[tuple[int, ...], np.dtype[Any]]], shared: bool
+) -> tuple[dict[str, torch.Tensor], dict[str, npt.NDArray[Any]]]:
+    """Tensors of the given shapes and dtypes, by name, all views of one new storage (each at a
+    64-byte boundary, contiguous), and numpy views of the same memory to fill them through.
+
+    Why one storage: a DataLoader worker sends each tensor's storage to the main process by its own
+    shared-memory segment (created, mapped, its descriptor passed and received), which for a batch of
+    a dozen tensors cost more CPU than building it; one storage is one segment. ``shared`` (in a
+    worker) creates it in shared memory at once, as the DataLoader's own collate does, so sending it
+    copies nothing. What this costs a consumer: a tensor kept alone keeps its whole batch's memory.
+    """
+    places: dict[str, tuple[int, int]] = {}
+    total = 0
+    for name, (shape, dtype) in layout.items():
+        size = math.prod(shape) * dtype.itemsize
+        places[name] = (total, size)
+        total += -(-size // 64) * 64
+    storage = torch.UntypedStorage._new_shared(total) if shared else torch.UntypedStorage(total)
+    block = torch.empty(0, dtype=torch.uint8).set_(storage)
+    tensors: dict[str, torch.Tensor] = {}
+    arrays: dict[str, npt.NDArray[Any]] = {}
+    for name, (shape, dtype) in layout.items():
+        start, size = places[name]
+        tensor = block[start : start + size].view(_torch_dtype(dtype)).view(shape)
+        tensors[name], arrays[name] = tensor, tensor.numpy()
+    return tensors, arrays
+
+
+def _torch_dtype(dtype: np.dtype[Any]) -> torch.dtype:
+    """torch's dtype for a numpy one (the one `torch.from_numpy` gives, so `SampleBatch.tensors`'s)."""
+    return torch.from_numpy(np.empty(0, dtype=dtype)).dtype
 
 
 class _ReadAhead:

@@ -131,6 +131,25 @@ def test_every_sample_once_across_two_workers(many: Path) -> None:
         assert torch.equal(two[row]["points"], single[row]["points"])
 
 
+def test_a_batch_is_one_storage_and_workers_change_no_tensor(many: Path) -> None:
+    """Every tensor of a batch is a contiguous view of one storage (one shared-memory segment from a
+    worker), and each sample's every tensor is the same from 2 workers as from the main process."""
+    single = by_index(batches(stream(many, epoch=1, covers=True)))
+    found = batches(stream(many, epoch=1, covers=True, num_workers=2), workers=2)
+    for batch in found:
+        tensors = batch.as_dict()
+        assert all(t.is_contiguous() for t in tensors.values())
+        assert len({t.untyped_storage().data_ptr() for t in tensors.values()}) == 1
+    two = by_index(found)
+    assert two.keys() == single.keys()
+    for row, sample in single.items():
+        assert sample.keys() == two[row].keys()
+        for name, value in sample.items():
+            assert value.dtype == two[row][name].dtype, (row, name)
+            if name not in ("covers", "cover_mask"):  # padded to each batch's longest listing
+                assert torch.equal(value, two[row][name]), (row, name)
+
+
 def test_every_sample_once_across_two_ranks_of_two_workers(many: Path) -> None:
     ranks = [stream(many, epoch=2, rank=rank, world_size=2, num_workers=2) for rank in (0, 1)]
     found = [batches(source, workers=2) for source in ranks]

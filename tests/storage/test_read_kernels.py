@@ -1,0 +1,121 @@
+"""The cheaper per-shard steps of the streaming read give exactly what the plain per-sample ones give:
+`storage.seeding` (numpy's SeedSequence -> PCG64 seeding on arrays), `samples.resample_many_keys`,
+`covers.listed_marginals`, `samples.key_centres` into ``out``, the local listing of a shard
+(`shards.local_files`) and its attributes read without zarr (`ShardReader`).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import fsspec
+import numpy as np
+import pytest
+from support import storage as fx
+
+from storage import ShardReader, StorageError, open_dataset
+from storage.covers import cover_marginals, listed_marginals
+from storage.samples import key_centres, resample_keys, resample_many_keys
+from storage.seeding import StreamGenerator, pcg64_states
+from storage.shards import local_files
+from storage.writer import shard_path
+
+
+def test_pcg64_states_are_numpys() -> None:
+    rng = np.random.default_rng(11)
+    streams = [tuple(int(v) for v in row) for row in rng.integers(0, 2**32, size=(500, 3))]
+    streams += [(0, 0, 0), (0, 0, 1), (7, 3, 0), (2**32 - 1, 2**32 - 1, 2**32 - 1), (0, 2**31, 12)]
+    states = pcg64_states(streams)
+    assert states is not None
+    generator = StreamGenerator()
+    for stream, state in zip(streams, states, strict=True):
+        expected = np.random.default_rng(np.random.SeedSequence(list(stream)))
+        assert (state[0], state[1]) == tuple(expected.bit_generator.state["state"].values()), stream
+        drawn = generator.at(state).choice(5000, size=64, replace=False, shuffle=False)
+        assert np.array_equal(drawn, expected.choice(5000, size=64, replace=False, shuffle=False)), stream
+
+
+@pytest.mark.parametrize("stream", [(0, 0, 2**32), (-1, 0, 0), (0, 0, np.int64(4)), (1.0, 0, 0)])
+def test_pcg64_states_leave_other_streams_to_numpy(stream: tuple[object, ...]) -> None:
+    assert pcg64_states([(0, 0, 1), stream]) is None  # type: ignore[list-item]
+    assert pcg64_states([]) == []
+
+
+@pytest.mark.parametrize("num_points", [1, 64, 2048])
+def test_resample_many_keys_is_resample_keys(num_points: int) -> None:
+    rng = np.random.default_rng(3)
+    sizes = [0, 1, 5, 63, 64, 65, 2047, 2048, 2049, 10_001, 20_000]
+    clouds = [rng.integers(-900, 900, size=(size, 3)).astype(np.int16) for size in sizes]
+    rows = [int(r) for r in rng.integers(0, 2**31, size=len(sizes))]
+    for seed, epoch in ((0, 0), (7, 3), (2**32 - 1, 12)):
+        found = resample_many_keys(clouds, num_points, seed, epoch, rows)
+        for cloud, row, got in zip(clouds, rows, found, strict=True):
+            expected = resample_keys(cloud, num_points, seed, epoch, row)
+            assert got.dtype == expected.dtype and np.array_equal(got, expected), (cloud.shape, row)
+    # a stream numpy hashes as more words: the plain path, the same arrays
+    big = resample_many_keys(clouds[:3], 8, 2**40, 0, [1, 2, 3])
+    for cloud, row, got in zip(clouds, [1, 2, 3], big, strict=False):
+        assert np.array_equal(got, resample_keys(cloud, 8, 2**40, 0, row))
+
+
+@pytest.mark.parametrize("num_views", [1, 7, 32, 33, 64])
+def test_listed_marginals_are_cover_marginals(num_views: int) -> None:
+    rng = np.random.default_rng(num_views)
+    sizes = rng.integers(0, 30, size=120)
+    sizes[[0, 5, -1]] = 0
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    covers = rng.integers(0, 2**63, size=int(offsets[-1]), dtype=np.uint64) * np.uint64(2) + np.uint64(1)
+    rows = rng.permutation(sizes.size)[:90]
+
+    def plain(where: np.ndarray) -> np.ndarray:
+        return np.stack([cover_marginals(covers[where[r] : where[r + 1]], num_views) for r in rows.tolist()])
+
+    found = listed_marginals(covers, offsets, rows, num_views)
+    assert found.dtype == np.float64 and np.array_equal(found.view(np.uint64), plain(offsets).view(np.uint64))
+    shuffled = offsets.copy()  # not back to back (a damaged offsets array): sample by sample, the same
+    shuffled[[10, 11]] = shuffled[[11, 10]]
+    assert np.array_equal(listed_marginals(covers, shuffled, rows, num_views), plain(shuffled))
+    assert listed_marginals(covers[:0], np.zeros(4, dtype=np.int64), np.arange(3), num_views).shape == (3, num_views)
+
+
+def test_key_centres_in_place_are_the_plain_formula() -> None:
+    rng = np.random.default_rng(5)
+    keys = rng.integers(-32768, 32767, size=(4, 300, 3)).astype(np.int16)
+    for voxel, offset in ((0.002, (0.2718, 0.3141, 0.1618)), (0.0037, (1e-3, -5.2, 3.3))):
+        plain = ((keys.astype(np.float64) + 0.5 - np.asarray(offset)) * voxel).astype(np.float32)
+        out = np.empty(keys.shape, dtype=np.float32)
+        assert key_centres(keys, voxel, offset, out=out) is out
+        assert np.array_equal(out.view(np.uint32), plain.view(np.uint32))
+        assert np.array_equal(key_centres(keys, voxel, offset).view(np.uint32), plain.view(np.uint32))
+
+
+def test_local_files_are_fsspecs_listing(tmp_path: Path) -> None:
+    root = tmp_path / "group"
+    for relative, size in (("a/zarr.json", 3), ("a/c/0/0", 5), ("a/c/0/1", 0), ("zarr.json", 1), ("b/c/0", 2)):
+        (root / relative).parent.mkdir(parents=True, exist_ok=True)
+        (root / relative).write_bytes(b"x" * size)
+    (root / "empty").mkdir()
+    found = fsspec.filesystem("file").find(str(root), detail=True)
+    listed = sorted(path.removeprefix(str(root)).strip("/") for path, info in found.items() if info.get("size"))
+    assert local_files(str(root)) == listed == ["a/c/0/0", "a/zarr.json", "b/c/0", "zarr.json"]
+    assert local_files(str(tmp_path / "missing")) == []
+
+
+def test_shard_attributes_without_zarr_are_zarrs(tmp_path: Path) -> None:
+    root = tmp_path / "ds"
+    fx.build_dataset(str(root), finalise_index=True)
+    dataset = open_dataset(str(root))
+    relative = shard_path(sorted(fx.task_ids())[0], fx.ATTEMPT)
+    reader = ShardReader(dataset.location, relative)
+    assert reader._zarr_group is None  # read and verified without opening the group through zarr
+    through_zarr = type(reader.attributes).model_validate(dict(reader._group.attrs))
+    assert reader.attributes.model_dump() == through_zarr.model_dump()
+    (root / relative / "zarr.json").write_text("{not json")
+    with pytest.raises(StorageError, match=r"unreadable group metadata zarr\.json"):
+        ShardReader(dataset.location, relative)
+    (root / relative / "zarr.json").unlink()
+    with pytest.raises(StorageError, match="the shard group is missing"):
+        ShardReader(dataset.location, relative, verify=False)
