@@ -83,13 +83,14 @@ def test_listed_marginals_are_cover_marginals(num_views: int) -> None:
 
 def test_key_centres_in_place_are_the_plain_formula() -> None:
     rng = np.random.default_rng(5)
-    keys = rng.integers(-32768, 32767, size=(4, 300, 3)).astype(np.int16)
-    for voxel, offset in ((0.002, (0.2718, 0.3141, 0.1618)), (0.0037, (1e-3, -5.2, 3.3))):
-        plain = ((keys.astype(np.float64) + 0.5 - np.asarray(offset)) * voxel).astype(np.float32)
-        out = np.empty(keys.shape, dtype=np.float32)
-        assert key_centres(keys, voxel, offset, out=out) is out
-        assert np.array_equal(out.view(np.uint32), plain.view(np.uint32))
-        assert np.array_equal(key_centres(keys, voxel, offset).view(np.uint32), plain.view(np.uint32))
+    for shape in ((4, 300, 3), (2, 3, 50, 3), (300, 3), (3,), (0, 5, 3)):
+        keys = rng.integers(-32768, 32767, size=shape).astype(np.int16)
+        for voxel, offset in ((0.002, (0.2718, 0.3141, 0.1618)), (0.0037, (1e-3, -5.2, 3.3))):
+            plain = ((keys.astype(np.float64) + 0.5 - np.asarray(offset)) * voxel).astype(np.float32)
+            out = np.empty(keys.shape, dtype=np.float32)
+            assert key_centres(keys, voxel, offset, out=out) is out
+            assert np.array_equal(out.view(np.uint32), plain.view(np.uint32)), shape
+            assert np.array_equal(key_centres(keys, voxel, offset).view(np.uint32), plain.view(np.uint32)), shape
 
 
 def test_local_files_are_fsspecs_listing(tmp_path: Path) -> None:
