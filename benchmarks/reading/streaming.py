@@ -179,7 +179,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
             total = len(dataset)
         seen, first, cpu, clock = 0, 0.0, cpu_seconds(), time.perf_counter()
         for batch in loader:
-            seen += int(batch.points.shape[0])
+            # the map-style path's default collate gives a dict, the stream a SampleBatch
+            seen += int((batch["points"] if isinstance(batch, dict) else batch.points).shape[0])
             if not first:
                 first = time.perf_counter() - clock
             if args.seconds > 0 and time.perf_counter() - clock > args.seconds:
