@@ -6,7 +6,9 @@ more than a third of the draw itself: a SeedSequence object, its Python-level ha
 object. Here the same arithmetic runs on arrays of streams (numpy's ``SeedSequence`` hashes uint32
 words with fixed constants; a PCG64 seeds itself from the first four 64-bit words it generates), and
 one PCG64 is set to each resulting state in turn: the same generator state, so the same draws.
-`tests/storage/test_seeding.py` checks the states against numpy's own for many streams.
+`tests/storage/test_read_kernels.py` checks the states against numpy's own for many streams, and
+`pcg64_states` checks one probe stream against numpy once per process: should a numpy release ever
+seed otherwise, every caller falls back to numpy's own seeding instead of drawing other points.
 
 Only streams whose three numbers each lie in [0, 2**32) take this path (numpy writes a larger one
 as several words); `pcg64_states` gives None for any other, and its caller seeds the plain way.
@@ -14,6 +16,7 @@ as several words); `pcg64_states` gives None for any other, and its caller seeds
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -71,9 +74,28 @@ def seed_words(entropy: Sequence[npt.NDArray[np.uint32]], words: int) -> list[U3
 
 def pcg64_states(streams: Sequence[Sequence[int]]) -> list[tuple[int, int]] | None:
     """The (state, inc) of ``PCG64(SeedSequence(list(stream)))`` for each stream of three numbers,
-    or None when a number lies outside [0, 2**32) (numpy would hash it as other words)."""
+    or None when a number lies outside [0, 2**32) (numpy would hash it as other words), or when this
+    numpy seeds the probe stream otherwise (`agrees_with_numpy`)."""
     if not streams:
         return []
+    if not agrees_with_numpy():
+        return None
+    return _states(streams)
+
+
+PROBE_STREAM = (20261127, 3, 4000000007)
+
+
+@functools.cache
+def agrees_with_numpy() -> bool:
+    """Whether this arithmetic gives numpy's own PCG64 state for a probe stream (checked once)."""
+    expected = np.random.PCG64(np.random.SeedSequence(list(PROBE_STREAM))).state["state"]
+    found = _states([PROBE_STREAM])
+    return found is not None and found[0] == (expected["state"], expected["inc"])
+
+
+def _states(streams: Sequence[Sequence[int]]) -> list[tuple[int, int]] | None:
+    """`pcg64_states` without the probe check."""
     values = np.asarray(streams, dtype=object).reshape(len(streams), -1)
     plain = all(type(v) is int and 0 <= v <= WORD for v in values.flat)
     if values.shape[1] != 3 or not plain:

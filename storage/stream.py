@@ -433,7 +433,8 @@ def _one_storage(
         size = math.prod(shape) * dtype.itemsize
         places[name] = (total, size)
         total += -(-size // 64) * 64
-    storage = torch.UntypedStorage._new_shared(total) if shared else torch.UntypedStorage(total)
+    storage = _shared_storage(total) if shared else None
+    storage = torch.UntypedStorage(total) if storage is None else storage
     block = torch.empty(0, dtype=torch.uint8).set_(storage)
     tensors: dict[str, torch.Tensor] = {}
     arrays: dict[str, npt.NDArray[Any]] = {}
@@ -442,6 +443,14 @@ def _one_storage(
         tensor = block[start : start + size].view(_torch_dtype(dtype)).view(shape)
         tensors[name], arrays[name] = tensor, tensor.numpy()
     return tensors, arrays
+
+
+def _shared_storage(size: int) -> torch.UntypedStorage | None:
+    """A storage of ``size`` bytes in shared memory, as the DataLoader's own collate makes one (a
+    private torch method); None where this torch lacks it (the DataLoader then moves the storage to
+    shared memory itself: a copy, not a failure)."""
+    make = getattr(torch.UntypedStorage, "_new_shared", None)
+    return make(size) if make is not None else None
 
 
 def _torch_dtype(dtype: np.dtype[Any]) -> torch.dtype:

@@ -120,3 +120,15 @@ def test_shard_attributes_without_zarr_are_zarrs(tmp_path: Path) -> None:
     (root / relative / "zarr.json").unlink()
     with pytest.raises(StorageError, match="the shard group is missing"):
         ShardReader(dataset.location, relative, verify=False)
+
+
+def test_a_numpy_seeding_otherwise_falls_back_to_numpys_own(monkeypatch: pytest.MonkeyPatch) -> None:
+    from storage import seeding
+
+    assert seeding.agrees_with_numpy()
+    monkeypatch.setattr(seeding, "agrees_with_numpy", lambda: False)
+    assert seeding.pcg64_states([(1, 2, 3)]) is None
+    clouds = [np.arange(300, dtype=np.int16).reshape(100, 3), np.zeros((0, 3), dtype=np.int16)]
+    got = resample_many_keys(clouds, 64, 5, 1, [10, 11])
+    for cloud, index, drawn in zip(clouds, [10, 11], got, strict=True):
+        np.testing.assert_array_equal(drawn, resample_keys(cloud, 64, 5, 1, index))
