@@ -70,19 +70,25 @@ INDEX_SCHEMAS: dict[int, pa.Schema] = {
     1: INDEX_SCHEMA_V1,
     2: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS]),
     3: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS, *NEXT_VIEW_FIELDS]),
+    4: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS, *NEXT_VIEW_FIELDS]),
 }
 INDEX_SCHEMA = INDEX_SCHEMAS[SCHEMA_VERSION]
 """The index as this version writes it."""
 
 
-def index_schema_version(schema: pa.Schema) -> int | None:
+def index_schema_version(schema: pa.Schema, expected: int | None = None) -> int | None:
     """The layout version whose index columns ``schema`` has (names and types, in order; nullability
-    is not compared), None for none."""
+    is not compared): ``expected`` when it has them (versions 3 and 4 share their columns, 4 changed
+    only the shards' point order), else the lowest that has them; None for none."""
     found = [(field.name, field.type) for field in schema]
-    for version, known in sorted(INDEX_SCHEMAS.items()):
-        if found == [(field.name, field.type) for field in known]:
-            return version
-    return None
+    matching = [
+        version
+        for version, known in sorted(INDEX_SCHEMAS.items())
+        if found == [(field.name, field.type) for field in known]
+    ]
+    if expected in matching:
+        return expected
+    return matching[0] if matching else None
 
 
 VOLATILE_COLUMNS = ("solver_seconds", "attempt_id", "shard")

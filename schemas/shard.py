@@ -13,6 +13,7 @@ name                   dtype         shape        meaning
 =====================  ============  ===========  ==============================================
 ``masks``              uint64        (N, 2)       column 0: view_state (case S), 1: label (L)
 ``points_keys``        int16         (P, 3)       keys of P(O_S) of every sample, concatenated
+                                                  (version 4: each cloud in `point_order`)
 ``points_offsets``     int64         (N + 1,)     sample i owns ``points_keys[o[i]:o[i+1]]``
 ``observed_keys``      int16         (Q, 3)       keys of O_S (what the input views saw)
 ``observed_offsets``   int64         (N + 1,)
@@ -42,8 +43,15 @@ gain counted over the visibility and over the coverage sets, with both denominat
 planners' 32^3 occupancy grid, kept as each view's ray cells once per task; a case's grid is its
 views inserted in ascending order (`storage.occupancy.case_grid`).
 
-Every key set of a sample or view is sorted lexicographically (x, y, z) and unique. Rows are
-ordered by (case size, case mask). Group attributes (`ShardAttributes`) say what the task was.
+Version 4 stores each sample's refined cloud (``points_keys``) in a seeded random order
+(`point_order`: a permutation of the sorted set from the stream of the dataset's seed, the task and
+the case), in inner chunks of a few thousand rows, so that any run of consecutive stored points is a
+uniform random subset of the cloud and a reader wanting N of them decodes one or two chunks instead
+of the whole cloud (`storage.samples.cloud_positions`).
+
+Every other key set of a sample or view, and a version-4 cloud once put back in `point_order`, is
+sorted lexicographically (x, y, z) and unique. Rows are ordered by (case size, case mask). Group
+attributes (`ShardAttributes`) say what the task was.
 """
 
 from __future__ import annotations
@@ -51,6 +59,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 from pydantic import BaseModel, ConfigDict
 
 from schemas.version import SCHEMA_VERSION
@@ -77,6 +86,11 @@ GRID_MISSES = "grid_misses"
 NEXT_VIEW_ARRAYS = (VIEW_GAINS, COVERAGE_GAINS, GAIN_TOTALS, GRID_FRAME, GRID_HITS, GRID_MISSES)
 """Version 3: the next-best-view labels and the occupancy grid's per-view ray cells."""
 GAIN_DTYPE = np.dtype(np.uint32)
+ORDERED_POINTS_SINCE = 4
+"""The first layout version whose ``points_keys`` hold each cloud in `point_order`."""
+POINT_ORDER_PURPOSE = 4
+"""The purpose number of the point-order stream among a task's random streams (docs/pipeline.md
+section 9; `datagen.pipeline.random_streams.Purpose.POINT_ORDER`)."""
 
 KEY_DTYPE = np.dtype(np.int16)
 OFFSET_DTYPE = np.dtype(np.int64)
@@ -89,6 +103,20 @@ def keys_array(name: str) -> str:
 
 def offsets_array(name: str) -> str:
     return f"{name}_offsets"
+
+
+def point_order(seed: int, object_id: str, rotation: int, case: int, count: int) -> npt.NDArray[np.int64]:
+    """Where each stored point of a version-4 cloud comes from: stored row ``j`` holds key
+    ``order[j]`` of the case's sorted cloud of ``count`` keys. A permutation from stream
+    ``(seed, object id prefix, rotation, POINT_ORDER_PURPOSE, case mask)``, so a fresh generation, a
+    relabel and a validation all find the same order from the sample's identity alone."""
+    entropy = [seed, int(object_id[:16], 16), rotation, POINT_ORDER_PURPOSE, case]
+    return np.random.default_rng(np.random.SeedSequence(entropy)).permutation(count).astype(np.int64)
+
+
+def ordered_points(schema_version: int, name: str) -> bool:
+    """True for the key set ``name`` (``points``, ``observed``) of a layout storing it in `point_order`."""
+    return name == "points" and schema_version >= ORDERED_POINTS_SINCE
 
 
 def array_names(schema_version: int = SCHEMA_VERSION) -> list[str]:

@@ -2,12 +2,14 @@
 
 1: samples, labels and the per-task sets. 2 adds each label's ambiguity: every minimum cover (up to
 the config's cap), their count and support, and the task's cover rows. 3 adds the next-best-view
-labels (every view's gain, the best next view) and the occupancy grid's per-view ray cells. Readers
-read every version; writers add tasks to a dataset in its own version.
+labels (every view's gain, the best next view) and the occupancy grid's per-view ray cells. 4 stores
+each sample's refined cloud in a seeded random order, in small chunks, so that a reader wanting N points
+decodes only the chunks of one window of that order (`schemas.shard.point_order`). Readers read every
+version; writers add tasks to a dataset in its own version.
 """
 
-SCHEMA_VERSION = 3
-READABLE_SCHEMA_VERSIONS = (1, 2, 3)
+SCHEMA_VERSION = 4
+READABLE_SCHEMA_VERSIONS = (1, 2, 3, 4)
 
 
 def unreadable_version(version: int) -> str | None:

@@ -107,6 +107,98 @@ def _decode_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
     return out[whole]
 
 
+class RowTaker:
+    """Rows of a key array of a verified shard, decoding only the inner chunks a `take` meets.
+
+    For the layout `storage.shards` writes a sharded key array in (one shard file of row chunks, its
+    index at the end), the file is read once and each inner chunk decoded (CRC32C checked) the first
+    time a take needs it: a window of a version-4 cloud costs one or two chunks, not the whole cloud.
+    Any other layout, and any failure, reads the whole array (`whole_array`, and zarr through
+    `ShardReader.array` for damage, which raises the reader's own `StorageError`)."""
+
+    def __init__(self, reader: ShardReader, name: str) -> None:
+        self._reader, self._name = reader, name
+        try:
+            self._chunked = _open_row_chunks(reader.location, f"{reader.relative}/{name}")
+        except Exception:
+            self._chunked = None
+        self._whole: npt.NDArray[Any] | None = None
+
+    def take(self, rows: npt.NDArray[np.int64]) -> npt.NDArray[Any]:
+        """The array's rows ``rows`` (any order, repeats allowed), stacked."""
+        if self._chunked is not None:
+            try:
+                return self._chunked.take(rows)
+            except Exception:
+                self._chunked = None  # read whole below: zarr names the damage
+        if self._whole is None:
+            self._whole = whole_array(self._reader, self._name)
+        return np.take(self._whole, rows, axis=0)
+
+
+class _RowChunks:
+    """One shard file of row chunks: its bytes, index and the chunks decoded so far (into ``rows``)."""
+
+    def __init__(
+        self, data: bytes, shape: tuple[int, ...], dtype: np.dtype[Any], inner: tuple[int, ...], count: int
+    ) -> None:
+        self._data, self._inner = data, inner
+        self._entries = np.frombuffer(_checked(data[-(16 * count + 4) :]), dtype="<u8").reshape(-1, 2)
+        if (self._entries[:, 0] == NO_CHUNK).any():
+            raise ValueError("a chunk was never written")  # zarr reads it as the fill value: leave that to zarr
+        self._rows = np.empty(shape, dtype=dtype)
+        self._done = np.zeros(count, dtype=bool)
+
+    def take(self, rows: npt.NDArray[np.int64]) -> npt.NDArray[Any]:
+        step, total = self._inner[0], self._rows.shape[0]
+        if rows.size and (int(rows.min()) < 0 or int(rows.max()) >= total):
+            raise IndexError(f"rows outside 0..{total - 1}")
+        needed = np.unique(rows // step)
+        for number in needed[~self._done[needed]].tolist():
+            start, size = self._entries[number].tolist()
+            chunk = _chunk(self._data[start : start + size], self._inner, self._rows.dtype)
+            first = number * step
+            self._rows[first : first + step] = chunk[: total - first]
+            self._done[number] = True
+        return np.take(self._rows, rows, axis=0)
+
+
+def _open_row_chunks(location: Location, relative: str) -> _RowChunks | None:
+    """The row-chunked shard file of the array at ``relative``, or None for another layout."""
+    meta = json.loads(location.read_bytes(f"{relative}/zarr.json"))
+    grid = meta["chunk_grid"]
+    codecs = meta["codecs"]
+    if (
+        meta.get("zarr_format") != 3
+        or meta.get("node_type") != "array"
+        or meta.get("storage_transformers")
+        or grid.get("name") != "regular"
+        or meta["chunk_key_encoding"] != {"name": "default", "configuration": {"separator": "/"}}
+        or len(codecs) != 1
+        or codecs[0].get("name") != "sharding_indexed"
+    ):
+        return None
+    shape = tuple(int(size) for size in meta["shape"])
+    outer = tuple(int(size) for size in grid["configuration"]["chunk_shape"])
+    config = codecs[0]["configuration"]
+    inner = tuple(int(size) for size in config["chunk_shape"])
+    if (
+        len(shape) != 2
+        or outer[0] < shape[0]
+        or outer[1:] != shape[1:]
+        or inner[1:] != shape[1:]
+        or outer[0] % inner[0]
+        or config.get("index_location", "end") != "end"
+        or config.get("index_codecs") != [PLAIN_BYTES, CHECKSUM]
+        or not _plain(config["codecs"])
+        or math.prod(shape) == 0
+    ):
+        return None
+    dtype = np.dtype(meta["data_type"]).newbyteorder("<")
+    data = location.read_bytes(f"{relative}/c/0/0")
+    return _RowChunks(data, shape, dtype, inner, outer[0] // inner[0])
+
+
 WRITTEN_CODECS = ("bytes", *(codec.to_dict()["name"] for codec in COMPRESSORS))
 """The codec names of a chunk as the writer stores it, in order (``bytes``, ``blosc``, ``crc32c``)."""
 

@@ -47,7 +47,7 @@ def check_fragments(
         except DamagedFile as exc:
             found.append(problem(f"cannot read index fragment ({exc.problem}); {RERUN_FIX}"))
             continue
-        version = index_schema_version(fragment.schema)
+        version = index_schema_version(fragment.schema, schema_version)
         if schema_version is None and version is not None:
             schema_version = version
         if version is None or version != schema_version:

@@ -14,6 +14,9 @@ is resampled from stream ``(seed, epoch, rows[p])``, its row in the dataset it w
 side loaded alone (``rows=`` or ``objects=``) gives exactly the tensors it gives in a whole load, and
 a whole load exactly what `storage.torch.OSVPDataset` gives for the same (seed, epoch, index).
 
+A version-4 dataset's refined clouds are drawn as windows of their stored order (`storage.samples`);
+memory still holds each whole cloud, since every epoch draws another window of it.
+
 Depends on numpy and `storage` only: no torch here (osvp wraps the arrays as tensors).
 """
 
@@ -46,8 +49,9 @@ from storage.samples import (
     bit_rows,
     check_source,
     fields_for,
+    gather_clouds,
     key_centres,
-    resample_indices,
+    windowed_cloud,
 )
 
 Progress = Callable[[int, int], None]
@@ -152,15 +156,13 @@ class MemoryDataset:
 
     def resampled_keys(self, positions: Rows, num_points: int, seed: int, epoch: int) -> npt.NDArray[np.int16]:
         """(B, num_points, 3) keys of the samples at ``positions``, each drawn from its own stream
-        (seed, epoch, dataset row) by `storage.samples.resample_indices`; an empty cloud stays at
-        the zero key."""
+        (seed, epoch, dataset row) by `storage.samples.gather_clouds` (a window of a version-4 refined
+        cloud's stored order); an empty cloud stays at the zero key."""
         index = np.asarray(positions, dtype=np.int64).reshape(-1)
-        chosen = np.zeros((index.size, num_points, 3), dtype=np.int16)
-        starts, stops, streams = self.offsets[index].tolist(), self.offsets[index + 1].tolist(), self.rows[index]
-        for slot, (start, stop, stream) in enumerate(zip(starts, stops, streams.tolist(), strict=True)):
-            if stop > start:
-                chosen[slot] = self.keys[start + resample_indices(stop - start, num_points, seed, epoch, stream)]
-        return chosen
+        starts = self.offsets[index]
+        sizes = self.offsets[index + 1] - starts
+        windowed = windowed_cloud(self.schema_version, self.source)
+        return gather_clouds(self.keys.__getitem__, starts, sizes, self.rows[index], num_points, seed, epoch, windowed)
 
     def batch(self, positions: Rows, num_points: int, seed: int, epoch: int) -> SampleBatch[npt.NDArray[Any]]:
         """The samples at ``positions`` (0 to len - 1), each resampled to ``num_points`` from its

@@ -8,7 +8,10 @@ the same things through these functions:
 - bit ``v`` of a mask is candidate view ``v``;
 - a cloud is resampled to a fixed point count from its own stream ``(seed, epoch, index)``, with
   replacement only when it holds fewer points, so a tensor never depends on batch size, worker
-  count or read order; an empty cloud becomes ``num_points`` zero keys;
+  count or read order; an empty cloud becomes ``num_points`` zero keys. A cloud stored in
+  `schemas.shard.point_order` (version 4's refined clouds) larger than the count gives instead one
+  window of its stored order, from a start drawn from that stream (wrapping past the end): a uniform
+  random subset that a reader gets by decoding one or two chunks (`cloud_positions`);
 - a batch of samples is one `SampleBatch` whatever read it (`storage.memory`, `storage.stream`,
   `storage.torch`, osvp): its numpy arrays, or the same as torch tensors (`SampleBatch.tensors`); the
   listed minimum covers are padded to the batch's longest listing by `padded_covers`;
@@ -40,6 +43,7 @@ from schemas.shard import (
     VIEW_GAINS,
     VIEW_STATE_COLUMN,
     offsets_array,
+    ordered_points,
 )
 from storage.occupancy import case_grid
 from storage.seeding import StreamGenerator, pcg64_states
@@ -324,6 +328,53 @@ def stream_indices(count: int, num_points: int, stream: Sequence[int]) -> npt.ND
     return rng.choice(count, size=num_points, replace=count < num_points, shuffle=False)
 
 
+def cloud_positions(
+    count: int, num_points: int, seed: int, epoch: int, index: int, windowed: bool
+) -> npt.NDArray[np.int64]:
+    """Which stored points of a cloud of ``count`` make the ``num_points`` of sample ``index`` in
+    ``epoch``. ``windowed`` (a cloud stored in `schemas.shard.point_order`, see `windowed_cloud`) and
+    more points than asked for: the window of ``num_points`` consecutive stored points from a start
+    drawn uniformly from stream (seed, epoch, index), wrapping past the end, so every point is as
+    likely as any other and each epoch sees another window; otherwise `resample_indices`."""
+    if not windowed or count <= num_points:
+        return resample_indices(count, num_points, seed, epoch, index)
+    start = int(np.random.default_rng(np.random.SeedSequence([seed, epoch, index])).integers(count))
+    positions = np.arange(start, start + num_points, dtype=np.int64)
+    return np.where(positions >= count, positions - count, positions)
+
+
+def windowed_cloud(schema_version: int, source: str) -> bool:
+    """Whether clouds ``source`` of a dataset of ``schema_version`` are read by windows (`cloud_positions`)."""
+    return ordered_points(schema_version, source)
+
+
+def gather_clouds(
+    take: Callable[[npt.NDArray[np.int64]], KeyArray],
+    starts: npt.NDArray[np.int64],
+    sizes: npt.NDArray[np.int64],
+    streams: npt.NDArray[np.int64],
+    num_points: int,
+    seed: int,
+    epoch: int,
+    windowed: bool,
+) -> KeyArray:
+    """(S, num_points, 3) keys of S clouds stored at rows ``starts[s]:starts[s] + sizes[s]`` of a key
+    array that ``take`` reads (rows -> keys), each resampled from stream (seed, epoch, streams[s]) by
+    `cloud_positions`: every reader gathers through here, so only the rows used need decoding. An
+    empty cloud stays at the zero key."""
+    chosen = np.zeros((starts.size, num_points, 3), dtype=np.int16)
+    filled = np.flatnonzero(sizes > 0)
+    if filled.size:
+        positions = [
+            start + cloud_positions(size, num_points, seed, epoch, stream, windowed)
+            for start, size, stream in zip(
+                starts[filled].tolist(), sizes[filled].tolist(), streams[filled].tolist(), strict=True
+            )
+        ]
+        chosen[filled] = take(np.concatenate(positions)).reshape(filled.size, num_points, 3)
+    return chosen
+
+
 def resample_cloud(points: npt.NDArray[np.float32], num_points: int, stream: Sequence[int]) -> npt.NDArray[np.float32]:
     """``num_points`` of a cloud (K, 3) in metres, drawn from ``stream`` (`stream_indices`); zeros when
     empty. What a planner does to a scene's cloud before its network sees it."""
@@ -332,12 +383,15 @@ def resample_cloud(points: npt.NDArray[np.float32], num_points: int, stream: Seq
     return np.take(points, stream_indices(points.shape[0], num_points, stream), axis=0)
 
 
-def resample_keys(keys: KeyArray, num_points: int, seed: int, epoch: int, index: int) -> KeyArray:
-    """``num_points`` keys of a cloud (K, 3), drawn from stream (seed, epoch, index); zeros when empty."""
+def resample_keys(
+    keys: KeyArray, num_points: int, seed: int, epoch: int, index: int, windowed: bool = False
+) -> KeyArray:
+    """``num_points`` keys of a whole cloud (K, 3) as stored, chosen by `cloud_positions` from stream
+    (seed, epoch, index); zeros when empty."""
     if keys.shape[0] == 0:
         return np.zeros((num_points, 3), dtype=np.int16)
     # np.take: the same rows as keys[...], gathered about 4x faster (it matters at thousands of clouds/s).
-    return np.take(keys, resample_indices(keys.shape[0], num_points, seed, epoch, index), axis=0)
+    return np.take(keys, cloud_positions(keys.shape[0], num_points, seed, epoch, index, windowed), axis=0)
 
 
 def resample_many_keys(

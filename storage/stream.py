@@ -15,10 +15,13 @@ One epoch, for a given (seed, epoch, worker count, world size):
 3. its samples pass a shuffle buffer of ``shuffle_buffer`` samples (each shard's rows permuted on the
    way in; stream ``(seed, epoch, STREAM_TAG, 2, part + 1)``); the order out of the buffer is
    computed from the index alone before any read, which is what makes `skip` cheap and exact;
-4. each cloud is resampled from stream (seed, epoch, dataset row index) as it is read
-   (`storage.samples.resample_many_keys`: `resample_keys`'s arrays, a shard's streams seeded together),
-   so a sample's tensors equal those of the in-memory path (`osvp.data.SampleBank`) and of
-   `storage.torch.OSVPDataset` for the same seed, epoch and row, whatever the order;
+4. each cloud is resampled from stream (seed, epoch, dataset row index) as it is read, so a sample's
+   tensors equal those of the in-memory path (`osvp.data.SampleBank`) and of
+   `storage.torch.OSVPDataset` for the same seed, epoch and row, whatever the order: a cloud of
+   version 1 to 3 by `storage.samples.resample_many_keys` (`resample_keys`'s arrays, a shard's streams
+   seeded together); a version-4 refined cloud by `storage.samples.gather_clouds`, one window of its
+   stored order, decoding only the key chunks that hold the shard's windows (`storage.codec.RowTaker`),
+   not the whole clouds;
 5. the part yields batches of ``batch_size`` samples (its last one smaller unless ``drop_last``), the
    tensors of a batch all views of one storage, made in shared memory in a worker: the DataLoader
    sends one shared-memory segment a batch instead of one a tensor.
@@ -64,7 +67,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from schemas.shard import COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from storage import samples
-from storage.codec import whole_array
+from storage.codec import RowTaker, whole_array
 from storage.covers import listed_marginals
 from storage.location import Location, open_location
 from storage.reader import Dataset, open_dataset
@@ -163,6 +166,8 @@ class ShardStream(IterableDataset[Batch]):
         self.voxel_size = float(dataset.info.config.voxel_size)
         self.grid_offset = np.asarray(dataset.info.config.grid_offset, dtype=np.float64)
         self.ambiguous = dataset.has_ambiguity
+        self.windowed = samples.windowed_cloud(dataset.info.schema_version, source)
+        """Clouds read by windows of their stored order (`storage.samples.cloud_positions`)."""
         self.field_names = [field.name for field in samples.fields_for(dataset.info.schema_version, fields)]
         """The registered `storage.samples.SampleField`s it reads (names: a worker looks them up)."""
         if covers and not self.ambiguous:
@@ -358,7 +363,7 @@ class ShardStream(IterableDataset[Batch]):
                 arrays[name] = whole_array(reader, name)
             return arrays[name]
 
-        keys, offsets = array(keys_array(self.source)), array(offsets_array(self.source))
+        offsets = array(offsets_array(self.source))
         masks = array(MASKS)
         rows = self._rows[shard][needed[self._rows[shard]]]
         local = self._shard_rows[rows]
@@ -373,8 +378,17 @@ class ShardStream(IterableDataset[Batch]):
             marginals = listed_marginals(covers, cover_offsets, local, self.num_views).astype(np.float32)
             cover_starts, cover_ends = cover_offsets[local].tolist(), cover_offsets[local + 1].tolist()
         listed_rows = rows.tolist()
-        clouds = [keys[start:end] for start, end in zip(starts, ends, strict=True)]
-        resampled = samples.resample_many_keys(clouds, self.num_points, self.seed, epoch, listed_rows)
+        if self.windowed:
+            # Version 4: one window of each stored order, decoding only the key chunks the windows meet.
+            take = RowTaker(reader, keys_array(self.source)).take
+            first = offsets[local]
+            sizes = offsets[local + 1] - first
+            windows = samples.gather_clouds(take, first, sizes, rows, self.num_points, self.seed, epoch, True)
+            resampled = list(windows)
+        else:
+            keys = array(keys_array(self.source))
+            clouds = [keys[start:end] for start, end in zip(starts, ends, strict=True)]
+            resampled = samples.resample_many_keys(clouds, self.num_points, self.seed, epoch, listed_rows)
         out: dict[int, _Prepared] = {}
         for slot, row in enumerate(listed_rows):
             out[row] = _Prepared(

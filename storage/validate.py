@@ -38,9 +38,12 @@ from schemas.shard import (
     TASK_SETS,
     VIEW_GAINS,
     VIEW_STATE_COLUMN,
+    ShardAttributes,
     array_names,
     keys_array,
     offsets_array,
+    ordered_points,
+    point_order,
 )
 from storage.covers import listed_problem, undominated, universe_rows
 from storage.dataset_info import read_info
@@ -226,7 +229,10 @@ def _check_open_shard(
     yield from shape_problems
     if shape_problems:
         return
-    yield from _check_sorted_sets(at, arrays, per_sample=True)
+    unordered = {}
+    if ordered_points(schema_version, "points"):
+        unordered = _in_sorted_order(arrays, shard.attributes, config.seed)
+    yield from _check_sorted_sets(at, {**arrays, **unordered}, per_sample=True, reordered=bool(unordered))
     yield from _check_sorted_sets(at, arrays, per_sample=False)
     too_wide = (masks >> np.uint64(num_views)) != 0 if num_views < 64 else np.zeros_like(masks, dtype=bool)
     for row in np.flatnonzero(too_wide.any(axis=1)):
@@ -278,8 +284,28 @@ def _check_key_sets(at: _Shard, arrays: dict[str, npt.NDArray[Any]], count: int,
         yield at("array", f"{GT_KEYS} is not sorted and unique", GT_KEYS)
 
 
-def _check_sorted_sets(at: _Shard, arrays: dict[str, npt.NDArray[Any]], per_sample: bool) -> Iterator[Problem]:
-    """Every key set is sorted (x, y, z) and unique: packed values strictly increase in a segment."""
+def _in_sorted_order(
+    arrays: dict[str, npt.NDArray[Any]], attributes: ShardAttributes, seed: int
+) -> dict[str, npt.NDArray[Any]]:
+    """A version-4 ``points_keys`` with each cloud put back from `schemas.shard.point_order` into the
+    order it was drawn from, which must be sorted and unique: so the one check finds a cloud whose set
+    or whose order departs from the rule."""
+    name = keys_array("points")
+    keys, offsets = arrays[name], arrays[offsets_array("points")]
+    cases = arrays[MASKS][:, VIEW_STATE_COLUMN].tolist()
+    back = np.empty_like(keys)
+    for row, case in enumerate(cases):
+        start, stop = int(offsets[row]), int(offsets[row + 1])
+        order = point_order(seed, attributes.object_id, attributes.rotation, int(case), stop - start)
+        back[start + order] = keys[start:stop]
+    return {name: back}
+
+
+def _check_sorted_sets(
+    at: _Shard, arrays: dict[str, npt.NDArray[Any]], per_sample: bool, reordered: bool = False
+) -> Iterator[Problem]:
+    """Every key set is sorted (x, y, z) and unique: packed values strictly increase in a segment
+    (``reordered``: the version-4 clouds once put back from their stored order)."""
     for name in KEY_SETS if per_sample else TASK_SETS:
         keys, offsets = arrays[keys_array(name)], arrays[offsets_array(name)]
         if keys.shape[0] < 2:
@@ -292,6 +318,11 @@ def _check_sorted_sets(at: _Shard, arrays: dict[str, npt.NDArray[Any]], per_samp
             row = int(np.searchsorted(offsets, position, side="right")) - 1
             place = f"{'row' if per_sample else 'view'} {row}"
             message = f"{keys_array(name)} is not sorted and unique (zeroed or corrupt data)"
+            if reordered and name == "points":
+                message = (
+                    f"{keys_array(name)} is not a sorted, unique set in the stored point order "
+                    "(zeroed, corrupt or reordered data)"
+                )
             yield at("array", message, keys_array(name), place)
 
 

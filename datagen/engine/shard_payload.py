@@ -27,6 +27,8 @@ from schemas.shard import (
     ShardAttributes,
     keys_array,
     offsets_array,
+    ordered_points,
+    point_order,
 )
 from schemas.version import SCHEMA_VERSION
 from storage import ShardPayload
@@ -40,8 +42,11 @@ def task_payload(result: TaskResult, config: GenerationConfig, schema_version: i
         "masks": np.array([[s.case, s.label] for s in samples], dtype=MASK_DTYPE).reshape(-1, 2),
         GT_KEYS: keys_to_int16(unpack_keys(result.sets.ground_truth)),
     }
+    clouds = [s.points for s in samples]
+    if ordered_points(schema_version, "points"):
+        clouds = [_in_point_order(s.points, config.seed, result, s.case) for s in samples]
     for name, sets in (
-        ("points", [s.points for s in samples]),
+        ("points", clouds),
         ("observed", [s.observed for s in samples]),
         ("visible", list(result.sets.visible)),
         ("refined", list(result.sets.refined)),
@@ -142,6 +147,13 @@ def _add_next_view(
     rows["best_view"] = [g.best_view for g in found]
     rows["best_view_ties"] = [g.best_view_ties for g in found]
     rows["best_gain"] = [int(g.visible[g.best_view]) if g.best_view >= 0 else 0 for g in found]
+
+
+def _in_point_order(points: npt.NDArray[np.int64], seed: int, result: TaskResult, case: int) -> npt.NDArray[np.int64]:
+    """A case's cloud (packed keys) in the order version 4 stores it: `schemas.shard.point_order` of its
+    sorted keys, so any run of stored points is a uniform random subset of the cloud."""
+    ordered = np.sort(points)  # the rule permutes the sorted set, whatever order the caller holds it in
+    return ordered[point_order(seed, result.object_id, result.rotation, case, ordered.size)]
 
 
 def _flatten(sets: Sequence[npt.NDArray[np.int64]]) -> tuple[npt.NDArray[np.int16], npt.NDArray[np.int64]]:

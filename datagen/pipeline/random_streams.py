@@ -10,6 +10,8 @@ from enum import IntEnum
 
 import numpy as np
 
+from schemas.shard import POINT_ORDER_PURPOSE
+
 
 class Purpose(IntEnum):
     GROUND_TRUTH = 0
@@ -17,6 +19,9 @@ class Purpose(IntEnum):
     REFINER_NOISE = 2
     EVALUATION = 3
     """`datagen evaluate`'s seeded baselines (the random planner), per initial view."""
+    POINT_ORDER = POINT_ORDER_PURPOSE
+    """Per case: the order a version-4 shard stores the refined cloud in (`schemas.shard.point_order`,
+    which draws it; storage and validation need it without the pipeline)."""
 
 
 def stream(seed: int, object_id: str, rotation: int, purpose: Purpose, mask: int | None = None) -> np.random.Generator:

@@ -501,11 +501,12 @@ def test_relabel_to_another_alpha_validates(engine_dataset: EngineDataset, tmp_p
     assert len(read_failures(open_location(out))) == engine_dataset.failed_tasks
 
 
-@pytest.mark.parametrize("version", [1, 2])
+@pytest.mark.parametrize("version", [1, 2, 3])
 def test_relabel_brings_an_older_dataset_to_a_fresh_generation(tmp_path: Path, version: int) -> None:
-    """Relabelling a version-1 or version-2 dataset at its own alpha gives exactly a fresh generation of
+    """Relabelling a version-1, 2 or 3 dataset at its own alpha gives exactly a fresh generation of
     the same tasks in the newest layout: same samples and labels, every minimum cover, count, support
-    and cover row (version 2), every view's gains, best next view and occupancy grid (version 3)."""
+    and cover row (version 2), every view's gains, best next view and occupancy grid (version 3), each
+    refined cloud in the stored point order (version 4)."""
     from support import storage as fx
 
     old, fresh, out = tmp_path / "old", tmp_path / "fresh", tmp_path / "relabelled"
@@ -518,6 +519,13 @@ def test_relabel_brings_an_older_dataset_to_a_fresh_generation(tmp_path: Path, v
     assert assert_same_samples(str(out), str(fresh)) == len(open_dataset(str(fresh)))
     checked = shards("validate", str(out), "--all")
     assert checked.exit_code == 0, checked.output
+    # The old clouds are sorted sets; the new ones hold the same keys, shuffled.
+    before, after = open_dataset(str(old)), open_dataset(str(out))
+    where = {sample: i for i, sample in enumerate(after.index.column("sample_id").to_pylist())}
+    for i, sample in enumerate(before.index.column("sample_id").to_pylist()):
+        stored, sorted_set = after.keys(where[sample], "points"), before.keys(i, "points")
+        np.testing.assert_array_equal(np.unique(stored, axis=0), sorted_set, err_msg=sample)
+        assert len(stored) < 3 or not np.array_equal(stored, sorted_set), sample
 
 
 def test_validate_all_recounts_the_minimum_covers(tmp_path: Path) -> None:

@@ -106,7 +106,7 @@ def test_an_unknown_schema_version_is_one_line(ds: Path) -> None:
     info = json.loads((ds / "dataset.json").read_text())
     info["schema_version"] = 99
     (ds / "dataset.json").write_text(json.dumps(info))
-    with pytest.raises(StorageError, match=r"schema version 99; this reader knows 1, 2, 3: upgrade datagen"):
+    with pytest.raises(StorageError, match=r"schema version 99; this reader knows 1, 2, 3, 4: upgrade datagen"):
         open_dataset(str(ds))
 
 
