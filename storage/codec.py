@@ -153,8 +153,9 @@ class _RowChunks:
         step, total = self._inner[0], self._rows.shape[0]
         if rows.size and (int(rows.min()) < 0 or int(rows.max()) >= total):
             raise IndexError(f"rows outside 0..{total - 1}")
-        needed = np.unique(rows // step)
-        for number in needed[~self._done[needed]].tolist():
+        wanted = np.zeros(self._done.size, dtype=bool)
+        wanted[rows // step] = True  # marks, not np.unique: no sort of the (many) rows
+        for number in np.flatnonzero(wanted & ~self._done).tolist():
             start, size = self._entries[number].tolist()
             chunk = _chunk(self._data[start : start + size], self._inner, self._rows.dtype)
             first = number * step

@@ -334,13 +334,17 @@ def cloud_positions(
     """Which stored points of a cloud of ``count`` make the ``num_points`` of sample ``index`` in
     ``epoch``. ``windowed`` (a cloud stored in `schemas.shard.point_order`, see `windowed_cloud`) and
     more points than asked for: the window of ``num_points`` consecutive stored points from a start
-    drawn uniformly from stream (seed, epoch, index), wrapping past the end, so every point is as
-    likely as any other and each epoch sees another window; otherwise `resample_indices`."""
+    drawn from stream (seed, epoch, index), wrapping past the end, so every point is as likely as any
+    other and each epoch sees another window; otherwise `resample_indices`. The start is the stream's
+    first 64-bit word (PCG64, what ``default_rng`` draws from) modulo ``count``: half the cost of a
+    Generator, and a bias below count / 2^64."""
     if not windowed or count <= num_points:
         return resample_indices(count, num_points, seed, epoch, index)
-    start = int(np.random.default_rng(np.random.SeedSequence([seed, epoch, index])).integers(count))
+    start = int(np.random.PCG64(np.random.SeedSequence([seed, epoch, index])).random_raw()) % count
     positions = np.arange(start, start + num_points, dtype=np.int64)
-    return np.where(positions >= count, positions - count, positions)
+    if start + num_points > count:
+        positions[count - start :] -= count
+    return positions
 
 
 def windowed_cloud(schema_version: int, source: str) -> bool:

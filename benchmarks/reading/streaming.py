@@ -2,14 +2,16 @@
 (`storage.torch.OSVPDataset` + `ShardShuffleSampler` + DataLoader), measured in the same run.
 
     python -m benchmarks.reading.streaming --make [--source /work/runs/big/train-v2] [--big /work/runs/stream-200k]
-    python -m benchmarks.reading.streaming [--data /work/runs/big/train-v2] [--big /work/runs/stream-200k]
+    python -m benchmarks.reading.streaming [--data /work/runs/big/train-v2 [--data OTHER ...]]
+        [--big /work/runs/stream-200k]
         [--seconds 0] [--repeats 3] [--s3 seaweedfs|moto|none] [--s3-shards 120]
         [--out benchmarks/reading/results/streaming.md]
 
 Rows (every measurement in a fresh subprocess, DataLoader with 2 workers, batch 32, ``--points`` 2,048):
 
-- throughput from local disk (``--data``) and from an S3 server on loopback (SeaweedFS from
-  `tests/support/s3_servers.py`, or moto), holding the first ``--s3-shards`` shards of ``--data``
+- throughput from local disk (each ``--data``: a dataset and its version-4 relabel compare window
+  reads with whole-cloud reads in one run) and from an S3 server on loopback (SeaweedFS from
+  `tests/support/s3_servers.py`, or moto), holding the first ``--s3-shards`` shards of the first ``--data``
   (S3 runs start their workers with ``spawn``: the map-style `OSVPDataset` cannot fork after its
   parent used s3fs, "This class is not fork-safe"; `ShardStream` reopens its store in each worker):
   samples/s over an epoch (or ``--seconds``) from the first ``next`` (worker start and the buffer
@@ -307,9 +309,9 @@ def benchmark(args: argparse.Namespace) -> str:
     use_test_support()
     before = machine_state()
     lines: list[tuple[str, str, int, dict[str, list[dict[str, Any]]]]] = []
-    local = throughput(args.data, args)
-    data = storage.open_dataset(args.data)
-    lines.append(("local disk", args.data, len(data), local))
+    for url in args.data:
+        data = storage.open_dataset(url)
+        lines.append((f"local disk, version {data.info.schema_version}", url, len(data), throughput(url, args)))
     s3: tuple[str, str, int, dict[str, list[dict[str, Any]]]] | None = None
     if args.s3 != "none":
         from support.s3_servers import moto_server, seaweedfs_server
@@ -317,7 +319,7 @@ def benchmark(args: argparse.Namespace) -> str:
         with tempfile.TemporaryDirectory() as folder:
             server_of = seaweedfs_server if args.s3 == "seaweedfs" else moto_server
             with server_of(Path(folder)) as server:
-                url = s3_copy(server, args.data, args.s3_shards)
+                url = s3_copy(server, args.data[0], args.s3_shards)
                 options = s3_options(server)
                 samples = len(storage.open_dataset(url, options))
                 runs = throughput(url, args, options=options, read_ahead=4, context="spawn")
@@ -331,8 +333,8 @@ def benchmark(args: argparse.Namespace) -> str:
             memory.append(
                 (f"stream, buffer {buffer:,}", run_one("stream", args.big, args, args.memory_seconds, buffer=buffer))
             )
-        small = len(storage.open_dataset(args.data))
-        found = run_one("stream", args.data, args, args.memory_seconds, buffer=4096)
+        small = len(storage.open_dataset(args.data[0]))
+        found = run_one("stream", args.data[0], args, args.memory_seconds, buffer=4096)
         memory.append((f"stream, buffer 4,096, on --data ({small:,} samples)", found))
     after = machine_state()
 
@@ -399,7 +401,9 @@ def main() -> None:
     parser.add_argument("--make", action="store_true", help="write --big from --source, then stop")
     parser.add_argument("--source", default="/work/runs/big/train-v2")
     parser.add_argument("--samples", type=int, default=200_000)
-    parser.add_argument("--data", default="/work/runs/big/train-v2")
+    parser.add_argument(
+        "--data", action="append", help="a dataset to read; repeat to compare (default /work/runs/big/train-v2)"
+    )
     parser.add_argument("--big", default="/work/runs/stream-200k")
     parser.add_argument("--seconds", type=float, default=0.0, help="stop each throughput run after this (0: an epoch)")
     parser.add_argument("--memory-seconds", type=float, default=60.0)
@@ -417,6 +421,7 @@ def main() -> None:
     parser.add_argument("--read-ahead", type=int, default=2, help=argparse.SUPPRESS)
     parser.add_argument("--context", default="fork", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    args.data = args.data or ["/work/runs/big/train-v2"]
     if args.measure:
         args.path = args.measure
         print(json.dumps(measure(args)))

@@ -2,8 +2,8 @@
 
 The truths here are written out in the test, not taken from the library: the permutation is numpy's
 ``permutation`` from ``SeedSequence([seed, object id prefix, rotation, 4, case])``; a window of N
-points is the stored rows ``(start + 0..N-1) mod K`` from ``start = integers(K)`` of stream
-``SeedSequence([seed, epoch, row])``; an older dataset's cloud is ``choice(K, N, replace=K < N,
+points is the stored rows ``(start + 0..N-1) mod K`` from ``start`` = the first 64-bit word of
+stream ``SeedSequence([seed, epoch, row])`` mod K; an older dataset's cloud is ``choice(K, N, replace=K < N,
 shuffle=False)`` from that same stream, as before version 4. Datasets: the storage tests' two
 built-ins (`support.storage`), in version 4 and in version 3.
 """
@@ -55,10 +55,11 @@ def version_3(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def window_truth(cloud: npt.NDArray[np.int16], num_points: int, seed: int, epoch: int, row: int) -> npt.NDArray:
     """A version-4 cloud's N points, as the contract states them."""
-    rng = np.random.default_rng(np.random.SeedSequence([seed, epoch, row]))
+    stream = np.random.SeedSequence([seed, epoch, row])
     if cloud.shape[0] <= num_points:  # whole, with repeats: the older rule
+        rng = np.random.default_rng(stream)
         return cloud[rng.choice(cloud.shape[0], size=num_points, replace=cloud.shape[0] < num_points, shuffle=False)]
-    start = int(rng.integers(cloud.shape[0]))
+    start = int(np.random.default_rng(stream).bit_generator.random_raw()) % cloud.shape[0]
     return cloud[(start + np.arange(num_points)) % cloud.shape[0]]
 
 
