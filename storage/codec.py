@@ -6,7 +6,9 @@ error); key arrays as one shard file of inner chunks with its index at the end, 
 `whole_array` decodes exactly that layout itself, every chunk's and the index's CRC32C checked, for a
 third of zarr's CPU time on a whole-array read (zarr's per-chunk machinery costs more than the
 decompression); any other layout, and any failure, goes back to zarr through `ShardReader.array`,
-which raises the reader's own `StorageError` for damage. A change of codec here changes both sides.
+which raises the reader's own `StorageError` for damage. `RowTaker` reads rows of a sharded key array
+decoding only the inner chunks they fall in (a version-4 cloud's window). A change of codec here
+changes both sides.
 """
 
 from __future__ import annotations

@@ -168,13 +168,14 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
             loader: DataLoader[Any] = stream.loader(multiprocessing_context=args.context)
             total = stream.num_samples
         else:
-            from storage.torch import OSVPDataset, ShardShuffleSampler
+            from storage.torch import OSVPDataset, ShardShuffleSampler, collate_samples
 
             dataset = OSVPDataset(args.url, num_points=args.points, storage_options=options)
             loader = DataLoader(
                 dataset,
                 batch_size=args.batch,
                 sampler=ShardShuffleSampler(dataset),
+                collate_fn=collate_samples,  # items are dicts since SampleBatch; this makes the batch one
                 num_workers=args.workers,
                 multiprocessing_context=args.context,
             )
@@ -353,7 +354,8 @@ def benchmark(args: argparse.Namespace) -> str:
         f"(worker start and the stream's buffer fill included) to {window}. "
         "Workers fork, except on S3 (spawn: the map-style path cannot fork after its parent used s3fs). "
         "Baseline: `OSVPDataset` + `ShardShuffleSampler` (per-sample reads, shards cached per worker, "
-        "default collate). Stream: `ShardStream` (whole shards, read ahead in threads, shuffle buffer 4,096, "
+        "`storage.torch.collate_samples`). Stream: `ShardStream` (whole shards, or a version-4 dataset's "
+        "windows, read ahead in threads, shuffle buffer 4,096, "
         "batches made in the workers, `batch_size=None`). CPU ms per sample: user + system time of the process "
         "and its workers over the counted window, divided by the samples (robust to other jobs' load, unlike "
         "samples/s; on S3 the server's own CPU is not in it); the ceiling is 2 cores divided by it.",
