@@ -32,6 +32,7 @@ from schemas.shard import (
     MASKS,
     VIEW_GAINS,
     VIEW_STATE_COLUMN,
+    keys_array,
     offsets_array,
 )
 from storage.covers import cover_marginals, universe_rows
@@ -42,7 +43,16 @@ from storage.index import finalise as finalise
 from storage.index import load_index
 from storage.location import Location, StorageError, open_location
 from storage.occupancy import case_grid
-from storage.samples import best_views, key_centres, mask_bits, split_by_object
+from storage.samples import (
+    KeyArray,
+    best_views,
+    gather_clouds,
+    key_centres,
+    mask_bits,
+    resample_keys,
+    split_by_object,
+    windowed_cloud,
+)
 from storage.shards import ShardReader
 from storage.store_errors import check_store, is_store_failure, storage_failure
 from storage.writer import read_failures
@@ -129,6 +139,19 @@ class Dataset:
         """Integer keys (K, 3) of sample i's ``points`` or ``observed`` set."""
         shard = self.shard(self._shard_col[i])
         return shard.key_set(source, int(self._row_col[i]))
+
+    def resampled_keys(self, i: int, num_points: int, seed: int, epoch: int, source: str = "points") -> KeyArray:
+        """(num_points, 3) keys of sample i drawn from stream (seed, epoch, i) by the sample contract
+        (`storage.samples.gather_clouds`): a version-4 refined cloud decodes only its window's chunks
+        (`ShardReader.rows`, cached per shard), any other cloud is read whole."""
+        shard = self.shard(self._shard_col[i])
+        row = int(self._row_col[i])
+        if not windowed_cloud(self.info.schema_version, source):
+            return resample_keys(shard.key_set(source, row), num_points, seed, epoch, i)
+        offsets = np.asarray(shard.array(offsets_array(source)), dtype=np.int64)
+        take = shard.rows(keys_array(source)).take
+        starts, sizes = offsets[row : row + 1], offsets[row + 1 : row + 2] - offsets[row : row + 1]
+        return gather_clouds(take, starts, sizes, np.array([i]), num_points, seed, epoch, True)[0]
 
     def centres(self, keys: npt.NDArray[np.integer]) -> npt.NDArray[np.float32]:
         """Voxel centres (float32 metres) of integer keys (`storage.samples.key_centres`)."""

@@ -22,7 +22,7 @@ from zarr.core.array_spec import ArrayConfigParams
 from zarr.storage import FsspecStore, LocalStore
 
 from schemas.shard import ShardAttributes, array_names, ordered_points
-from storage.codec import COMPRESSORS
+from storage.codec import COMPRESSORS, RowTaker, decoded_whole
 from storage.location import Location, damaged, first_line, is_temporary
 from storage.store_errors import is_store_failure, storage_failure
 
@@ -128,6 +128,7 @@ class ShardReader:
         self.location = location
         self.relative = relative
         self._cache: dict[str, npt.NDArray[Any]] = {}
+        self._takers: dict[str, RowTaker] = {}
         self._nodes: dict[str, zarr.Array[Any]] = {}
         self._files: set[str] | None = None
         self._zarr_group: zarr.Group | None = None
@@ -196,8 +197,15 @@ class ShardReader:
         return node
 
     def array(self, name: str) -> npt.NDArray[Any]:
-        """A whole array (cached)."""
+        """A whole array (cached): decoded by `storage.codec` where it has the layout written here (zarr's
+        per-chunk machinery costs several times the decompression of a version-4 ``points_keys``'
+        hundreds of small chunks), through zarr otherwise and for every failure, which names the damage."""
         if name not in self._cache:
+            found = decoded_whole(self.location, f"{self.relative}/{name}")
+            if found is not None:
+                # writable, as zarr's: a one-chunk array is a view of the decoded bytes
+                self._cache[name] = found if found.flags.writeable else found.copy()
+                return self._cache[name]
             node = self._array(name)
             try:
                 self._cache[name] = np.asarray(node[...])
@@ -291,6 +299,13 @@ class ShardReader:
 
     def array_dtype(self, name: str) -> np.dtype[Any]:
         return np.dtype(self._array(name).dtype)
+
+    def rows(self, name: str) -> RowTaker:
+        """Rows of key array ``name``, each inner chunk decoded once, when first needed (cached): what a
+        reader of one sample's window uses instead of the whole array."""
+        if name not in self._takers:
+            self._takers[name] = RowTaker(self, name)
+        return self._takers[name]
 
     def key_set(self, name: str, row: int) -> npt.NDArray[np.int16]:
         """Rows ``offsets[row]:offsets[row + 1]`` of ``<name>_keys``."""

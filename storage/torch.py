@@ -19,7 +19,7 @@ from torch.utils.data import DataLoader, Sampler
 from torch.utils.data import Dataset as TorchDataset
 
 from storage.reader import Dataset, open_dataset
-from storage.samples import SampleBatch, Source, bit_rows, check_source, resample_keys, windowed_cloud
+from storage.samples import SampleBatch, Source, bit_rows, check_source
 
 Item = dict[str, torch.Tensor]
 """One sample: the fields of a `SampleBatch` without the batch axis (what a DataLoader's default
@@ -60,8 +60,6 @@ class OSVPDataset(TorchDataset[Item]):
         self.source = source
         self.seed = seed
         self.epoch = 0
-        self.windowed = windowed_cloud(dataset.info.schema_version, source)
-        """Clouds drawn as windows of their stored order (`storage.samples.cloud_positions`)."""
 
     def set_epoch(self, epoch: int) -> None:
         """Choose the resampling of this epoch (call before creating the DataLoader iterator)."""
@@ -72,8 +70,7 @@ class OSVPDataset(TorchDataset[Item]):
 
     def __getitem__(self, index: int) -> Item:
         index = range(len(self))[index]  # negative indices as for any sequence
-        cloud = self.dataset.keys(index, self.source)
-        keys = resample_keys(cloud, self.num_points, self.seed, self.epoch, index, self.windowed)
+        keys = self.dataset.resampled_keys(index, self.num_points, self.seed, self.epoch, self.source)
         view_state, label = self.dataset.masks(index)
         width = self.dataset.num_views
         return {
