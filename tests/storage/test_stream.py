@@ -3,7 +3,7 @@ and ranks, with the tensors of the map-style reader (`storage.torch.OSVPDataset`
 order is fixed by (seed, epoch, workers, world size); a restart after K batches yields the uninterrupted
 tail; a damaged shard is the map-style reader's `StorageError`; and it reads from S3.
 
-The dataset: the storage tests' two built-ins committed 4 times over (8 shards, version 2:
+The dataset: the storage tests' two built-ins committed 4 times over (8 shards, the newest version:
 `support.storage.build_many_tasks`).
 """
 
