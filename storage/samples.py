@@ -340,7 +340,36 @@ def cloud_positions(
     Generator, and a bias below count / 2^64."""
     if not windowed or count <= num_points:
         return resample_indices(count, num_points, seed, epoch, index)
-    start = int(np.random.PCG64(np.random.SeedSequence([seed, epoch, index])).random_raw()) % count
+    first_word = int(np.random.PCG64(np.random.SeedSequence([seed, epoch, index])).random_raw())
+    return _window(first_word % count, num_points, count)
+
+
+def many_cloud_positions(
+    counts: Sequence[int], num_points: int, seed: int, epoch: int, indices: Sequence[int], windowed: bool
+) -> list[npt.NDArray[np.int64]]:
+    """``[cloud_positions(count, num_points, seed, epoch, index, windowed) ...]`` of many non-empty
+    clouds, the same arrays for less CPU: the streams' PCG64 states are derived together
+    (`storage.seeding.pcg64_states`, numpy's own states, else numpy's seeding per cloud) and one
+    generator is set to each in turn. A PCG64 at a given state gives the same first word and a
+    Generator on it the same ``choice``, so both the window start and `resample_indices`' draw are
+    those of a generator seeded the plain way."""
+    states = pcg64_states([(seed, epoch, index) for index in indices])
+    if states is None:
+        pairs = zip(counts, indices, strict=True)
+        return [cloud_positions(count, num_points, seed, epoch, index, windowed) for count, index in pairs]
+    generator = StreamGenerator()
+    out: list[npt.NDArray[np.int64]] = []
+    for count, state in zip(counts, states, strict=True):
+        rng = generator.at(state)
+        if windowed and count > num_points:
+            out.append(_window(int(rng.bit_generator.random_raw()) % count, num_points, count))
+        else:
+            out.append(rng.choice(count, size=num_points, replace=count < num_points, shuffle=False))
+    return out
+
+
+def _window(start: int, num_points: int, count: int) -> npt.NDArray[np.int64]:
+    """Positions ``start, start + 1, ...`` of ``num_points`` stored points, wrapping past ``count``."""
     positions = np.arange(start, start + num_points, dtype=np.int64)
     if start + num_points > count:
         positions[count - start :] -= count
@@ -364,17 +393,14 @@ def gather_clouds(
 ) -> KeyArray:
     """(S, num_points, 3) keys of S clouds stored at rows ``starts[s]:starts[s] + sizes[s]`` of a key
     array that ``take`` reads (rows -> keys), each resampled from stream (seed, epoch, streams[s]) by
-    `cloud_positions`: every reader gathers through here, so only the rows used need decoding. An
-    empty cloud stays at the zero key."""
+    `cloud_positions` (`many_cloud_positions`, the streams seeded together): every reader gathers
+    through here, so only the rows used need decoding. An empty cloud stays at the zero key."""
     chosen = np.zeros((starts.size, num_points, 3), dtype=np.int16)
     filled = np.flatnonzero(sizes > 0)
     if filled.size:
-        positions = [
-            start + cloud_positions(size, num_points, seed, epoch, stream, windowed)
-            for start, size, stream in zip(
-                starts[filled].tolist(), sizes[filled].tolist(), streams[filled].tolist(), strict=True
-            )
-        ]
+        counts, firsts = sizes[filled].tolist(), starts[filled].tolist()
+        drawn = many_cloud_positions(counts, num_points, seed, epoch, streams[filled].tolist(), windowed)
+        positions = [first + where for first, where in zip(firsts, drawn, strict=True)]
         chosen[filled] = take(np.concatenate(positions)).reshape(filled.size, num_points, 3)
     return chosen
 
@@ -401,9 +427,10 @@ def resample_keys(
 def resample_many_keys(
     clouds: Sequence[KeyArray], num_points: int, seed: int, epoch: int, indices: Sequence[int]
 ) -> list[KeyArray]:
-    """``[resample_keys(cloud, num_points, seed, epoch, index) ...]`` of many clouds, the same arrays
-    for less CPU: the streams' PCG64 states are derived together and one generator is set to each in
-    turn (`storage.seeding`) instead of a SeedSequence and a generator built per cloud."""
+    """``[resample_keys(cloud, num_points, seed, epoch, index) ...]`` of many clouds read whole (windows
+    of version-4 clouds are `gather_clouds`'), the same arrays for less CPU: the streams' PCG64 states
+    are derived together and one generator is set to each in turn (`storage.seeding`) instead of a
+    SeedSequence and a generator built per cloud."""
     states = pcg64_states([(seed, epoch, index) for index in indices])
     if states is None:
         pairs = zip(clouds, indices, strict=True)

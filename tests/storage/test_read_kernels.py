@@ -1,5 +1,6 @@
 """The cheaper per-shard steps of the streaming read give exactly what the plain per-sample ones give:
 `storage.seeding` (numpy's SeedSequence -> PCG64 seeding on arrays), `samples.resample_many_keys`,
+`samples.many_cloud_positions` (version 4's windows and whole-cloud draws, seeded together),
 `covers.listed_marginals`, `samples.key_centres` into ``out``, the local listing of a shard
 (`shards.local_files`) and its attributes read without zarr (`ShardReader`).
 """
@@ -18,7 +19,7 @@ from support import storage as fx
 
 from storage import ShardReader, StorageError, open_dataset
 from storage.covers import cover_marginals, listed_marginals
-from storage.samples import key_centres, resample_keys, resample_many_keys
+from storage.samples import cloud_positions, key_centres, many_cloud_positions, resample_keys, resample_many_keys
 from storage.seeding import StreamGenerator, pcg64_states
 from storage.shards import local_files
 from storage.writer import shard_path
@@ -59,6 +60,21 @@ def test_resample_many_keys_is_resample_keys(num_points: int) -> None:
     big = resample_many_keys(clouds[:3], 8, 2**40, 0, [1, 2, 3])
     for cloud, row, got in zip(clouds, [1, 2, 3], big, strict=False):
         assert np.array_equal(got, resample_keys(cloud, 8, 2**40, 0, row))
+
+
+@pytest.mark.parametrize("windowed", [False, True])
+def test_many_cloud_positions_are_cloud_positions(windowed: bool) -> None:
+    """Window starts (the stream's first PCG64 word) and whole-cloud draws alike, for clouds smaller
+    than, as large as and larger than the count; a stream numpy hashes as more words takes the plain
+    path with the same positions."""
+    rng = np.random.default_rng(5)
+    counts = [1, 5, 2047, 2048, 2049, 4096, 17_700, 100_003]
+    rows = [int(r) for r in rng.integers(0, 2**31, size=len(counts))]
+    for seed, epoch, num_points in ((0, 0, 2048), (7, 3, 64), (2**32 - 1, 12, 2048), (2**40, 1, 2048)):
+        found = many_cloud_positions(counts, num_points, seed, epoch, rows, windowed)
+        for count, row, got in zip(counts, rows, found, strict=True):
+            expected = cloud_positions(count, num_points, seed, epoch, row, windowed)
+            assert got.dtype == expected.dtype and np.array_equal(got, expected), (count, row, seed)
 
 
 @pytest.mark.parametrize("num_views", [1, 7, 32, 33, 64])
