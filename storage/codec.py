@@ -115,6 +115,11 @@ def _decode_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
     return out[whole]
 
 
+NEAR_CHUNKS = 3
+"""A take whose rows lie within this many consecutive inner chunks decodes all of them (a window
+that does not wrap meets every chunk between its ends) and skips marking which ones it meets."""
+
+
 class RowTaker:
     """Rows of a key array of a verified shard, decoding only the inner chunks a `take` meets.
 
@@ -162,22 +167,32 @@ class _RowChunks:
 
     def take(self, rows: npt.NDArray[np.int64]) -> npt.NDArray[Any]:
         step = self._inner[0]
-        if rows.size and (int(rows.min()) < 0 or int(rows.max()) >= self._total):
+        if not rows.size:
+            return np.zeros((0, *self._inner[1:]), dtype=self._dtype)
+        low, high = int(rows.min()), int(rows.max())
+        if low < 0 or high >= self._total:
             raise IndexError(f"rows outside 0..{self._total - 1}")
+        first, last = low // step, high // step
+        if last - first < NEAR_CHUNKS:  # a window that does not wrap: its chunks in a row, no marks
+            held = [self._decoded(number) for number in range(first, last + 1)]
+            block = held[0] if len(held) == 1 else np.concatenate(held)
+            return np.take(block, rows - first * step, axis=0)
         numbers = rows // step
         wanted = np.zeros(self._entries.shape[0], dtype=bool)
         wanted[numbers] = True  # marks, not np.unique: no sort of the (many) rows
         needed = np.flatnonzero(wanted)
-        for number in needed.tolist():
-            if number not in self._chunks:
-                start, size = self._entries[number].tolist()
-                self._chunks[number] = _chunk(self._data[start : start + size], self._inner, self._dtype)
-        if needed.size == 1:
-            return np.take(self._chunks[int(needed[0])], rows - int(needed[0]) * step, axis=0)
-        held = np.concatenate([self._chunks[number] for number in needed.tolist()])
+        held = np.concatenate([self._decoded(number) for number in needed.tolist()])
         base = np.zeros(self._entries.shape[0], dtype=np.int64)
         base[needed] = np.arange(needed.size, dtype=np.int64) * step
         return np.take(held, base[numbers] + rows % step, axis=0)
+
+    def _decoded(self, number: int) -> npt.NDArray[Any]:
+        """Inner chunk ``number``, decoded (CRC32C checked) the first time it is asked for."""
+        found = self._chunks.get(number)
+        if found is None:
+            start, size = self._entries[number].tolist()
+            found = self._chunks[number] = _chunk(self._data[start : start + size], self._inner, self._dtype)
+        return found
 
 
 def _open_row_chunks(location: Location, relative: str) -> _RowChunks | None:

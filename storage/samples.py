@@ -353,7 +353,7 @@ def many_cloud_positions(
     generator is set to each in turn. A PCG64 at a given state gives the same first word and a
     Generator on it the same ``choice``, so both the window start and `resample_indices`' draw are
     those of a generator seeded the plain way."""
-    states = pcg64_states([(seed, epoch, index) for index in indices])
+    states = _shared_states(seed, epoch, indices)
     if states is None:
         pairs = zip(counts, indices, strict=True)
         return [cloud_positions(count, num_points, seed, epoch, index, windowed) for count, index in pairs]
@@ -366,6 +366,20 @@ def many_cloud_positions(
         else:
             out.append(rng.choice(count, size=num_points, replace=count < num_points, shuffle=False))
     return out
+
+
+SHARED_SEEDING_FROM = 16
+"""Fewest streams seeded together (`storage.seeding.pcg64_states`): its array arithmetic costs about
+170 us whatever the count, numpy's own seeding about 12 us a stream, so a map-style reader's one
+sample at a time is seeded the plain way (the same states either way)."""
+
+
+def _shared_states(seed: int, epoch: int, indices: Sequence[int]) -> list[tuple[int, int]] | None:
+    """The PCG64 states of streams (seed, epoch, index) computed together, or None where numpy's own
+    seeding per stream is cheaper (fewer than `SHARED_SEEDING_FROM`) or must be used."""
+    if len(indices) < SHARED_SEEDING_FROM:
+        return None
+    return pcg64_states([(seed, epoch, index) for index in indices])
 
 
 def _window(start: int, num_points: int, count: int) -> npt.NDArray[np.int64]:
@@ -431,7 +445,7 @@ def resample_many_keys(
     of version-4 clouds are `gather_clouds`'), the same arrays for less CPU: the streams' PCG64 states
     are derived together and one generator is set to each in turn (`storage.seeding`) instead of a
     SeedSequence and a generator built per cloud."""
-    states = pcg64_states([(seed, epoch, index) for index in indices])
+    states = _shared_states(seed, epoch, indices)
     if states is None:
         pairs = zip(clouds, indices, strict=True)
         return [resample_keys(cloud, num_points, seed, epoch, index) for cloud, index in pairs]
