@@ -181,10 +181,10 @@ class _RowChunks:
         wanted = np.zeros(self._entries.shape[0], dtype=bool)
         wanted[numbers] = True  # marks, not np.unique: no sort of the (many) rows
         needed = np.flatnonzero(wanted)
-        held = np.concatenate([self._decoded(number) for number in needed.tolist()])
+        block = np.concatenate([self._decoded(number) for number in needed.tolist()])
         base = np.zeros(self._entries.shape[0], dtype=np.int64)
         base[needed] = np.arange(needed.size, dtype=np.int64) * step
-        return np.take(held, base[numbers] + rows % step, axis=0)
+        return np.take(block, base[numbers] + rows % step, axis=0)
 
     def _decoded(self, number: int) -> npt.NDArray[Any]:
         """Inner chunk ``number``, decoded (CRC32C checked) the first time it is asked for."""
