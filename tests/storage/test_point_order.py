@@ -165,6 +165,24 @@ def test_a_window_decodes_only_its_chunks(version_4: Path, tmp_path: Path) -> No
         taker.take(np.array([(chunks - 2) * POINT_CHUNK_ROWS + 5], dtype=np.int64))
 
 
+def test_a_take_gives_zarrs_rows_for_any_rows(version_4: Path) -> None:
+    """Rows near each other (within a few chunks: no marks), spread over the array, repeated,
+    unordered, wrapped and none: each take equals zarr's own read of those rows."""
+    reader = ShardReader(open_dataset(str(version_4)).location, SHARD)
+    stored = zarr.open_group(str(version_4 / SHARD), mode="r")[keys_array("points")][...]
+    total = stored.shape[0]
+    assert total > 4 * POINT_CHUNK_ROWS
+    rng = np.random.default_rng(7)
+    near = rng.integers(POINT_CHUNK_ROWS - 3, 3 * POINT_CHUNK_ROWS + 5, size=900)
+    wrapped = np.concatenate([np.arange(total - 700, total), np.arange(0, 1348)])
+    cases = [near, rng.integers(0, total, size=3000), np.array([5, 5, 2, 5]), wrapped, np.zeros(0, np.int64)]
+    for rows in cases:
+        taker = RowTaker(reader, keys_array("points"))  # fresh: no chunk decoded by an earlier case
+        assert np.array_equal(taker.take(rows.astype(np.int64)), stored[rows])
+    with pytest.raises(IndexError):
+        RowTaker(reader, keys_array("points")).take(np.array([total], dtype=np.int64))
+
+
 def test_the_window_path_is_the_same_with_two_workers(version_4: Path) -> None:
     assert_same(streamed(version_4, 2048, epoch=3), streamed(version_4, 2048, epoch=3, workers=2))
 
