@@ -61,19 +61,27 @@ def decoded_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
         return None
 
 
-def _decode_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
-    """The whole array at ``relative``, or None when its layout is not the one decoded here."""
-    meta = json.loads(location.read_bytes(f"{relative}/zarr.json"))
-    grid = meta["chunk_grid"]
-    encoding = meta["chunk_key_encoding"]
+def _regular_array(location: Location, relative: str) -> dict[str, Any] | None:
+    """The zarr.json of the array at ``relative`` when it is a plain zarr v3 array on a regular grid
+    with the default "/" chunk keys (the writer's every array), else None: another layout for zarr."""
+    meta: dict[str, Any] = json.loads(location.read_bytes(f"{relative}/zarr.json"))
     if (
         meta.get("zarr_format") != 3
         or meta.get("node_type") != "array"
         or meta.get("storage_transformers")
-        or grid.get("name") != "regular"
-        or encoding != {"name": "default", "configuration": {"separator": "/"}}
+        or meta["chunk_grid"].get("name") != "regular"
+        or meta["chunk_key_encoding"] != {"name": "default", "configuration": {"separator": "/"}}
     ):
         return None
+    return meta
+
+
+def _decode_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
+    """The whole array at ``relative``, or None when its layout is not the one decoded here."""
+    meta = _regular_array(location, relative)
+    if meta is None:
+        return None
+    grid = meta["chunk_grid"]
     shape = tuple(int(size) for size in meta["shape"])
     dtype = np.dtype(meta["data_type"]).newbyteorder("<")
     outer = tuple(int(size) for size in grid["configuration"]["chunk_shape"])
@@ -197,19 +205,11 @@ class _RowChunks:
 
 def _open_row_chunks(location: Location, relative: str) -> _RowChunks | None:
     """The row-chunked shard file of the array at ``relative``, or None for another layout."""
-    meta = json.loads(location.read_bytes(f"{relative}/zarr.json"))
-    grid = meta["chunk_grid"]
-    codecs = meta["codecs"]
-    if (
-        meta.get("zarr_format") != 3
-        or meta.get("node_type") != "array"
-        or meta.get("storage_transformers")
-        or grid.get("name") != "regular"
-        or meta["chunk_key_encoding"] != {"name": "default", "configuration": {"separator": "/"}}
-        or len(codecs) != 1
-        or codecs[0].get("name") != "sharding_indexed"
-    ):
+    meta = _regular_array(location, relative)
+    codecs = meta["codecs"] if meta is not None else []
+    if meta is None or len(codecs) != 1 or codecs[0].get("name") != "sharding_indexed":
         return None
+    grid = meta["chunk_grid"]
     shape = tuple(int(size) for size in meta["shape"])
     outer = tuple(int(size) for size in grid["configuration"]["chunk_shape"])
     config = codecs[0]["configuration"]

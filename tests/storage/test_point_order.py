@@ -39,20 +39,6 @@ FIRST = sorted(fx.task_ids())[0]
 SHARD = shard_path(FIRST, fx.ATTEMPT)
 
 
-@pytest.fixture(scope="module")
-def version_4(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("v4") / "ds"
-    fx.build_dataset(str(root), finalise_index=True, schema_version=4)
-    return root
-
-
-@pytest.fixture(scope="module")
-def version_3(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("v3") / "ds"
-    fx.build_dataset(str(root), finalise_index=True, schema_version=3)
-    return root
-
-
 def window_truth(cloud: npt.NDArray[np.int16], num_points: int, seed: int, epoch: int, row: int) -> npt.NDArray:
     """A version-4 cloud's N points, as the contract states them."""
     stream = np.random.SeedSequence([seed, epoch, row])
@@ -88,6 +74,22 @@ def to_keys(dataset, points: npt.NDArray[np.float32]) -> npt.NDArray[np.int16]: 
     return np.floor(points.astype(np.float64) / config.voxel_size + np.asarray(config.grid_offset)).astype(np.int16)
 
 
+def assert_every_reader_gives(root: Path, num_points: int, epoch: int, truths: list[npt.NDArray[np.int16]]) -> None:
+    """`ShardStream`, `load_memory` and `OSVPDataset` give ``truths[row]`` for every dataset row in
+    ``epoch``: the same keys, and the map-style path the very float32 centres of those keys."""
+    dataset = open_dataset(str(root))
+    memory = load_memory(str(root))
+    mapped = OSVPDataset(str(root), num_points=num_points, seed=SEED)
+    mapped.set_epoch(epoch)
+    from_stream = streamed(root, num_points, epoch=epoch)
+    from_memory = memory.resampled_keys(np.arange(len(memory)), num_points, SEED, epoch)
+    assert len(truths) == len(dataset) == len(from_stream)
+    for row, truth in enumerate(truths):
+        assert np.array_equal(from_stream[row], truth), row
+        assert np.array_equal(from_memory[row], truth), row
+        assert torch.equal(mapped[row]["points"], torch.from_numpy(dataset.centres(truth))), row
+
+
 def test_the_generator_stores_each_cloud_in_the_seeded_order(version_4: Path) -> None:
     """Stored row j of a cloud is key order[j] of the case's sorted cloud, order the permutation of the
     sample's own stream; the points array is chunked so that a window meets one or two chunks."""
@@ -120,18 +122,10 @@ def test_every_reader_gives_the_window_of_the_stored_order(version_4: Path, num_
     """`ShardStream`, `load_memory` and `OSVPDataset` give each sample's window of its stored order (or,
     for a cloud of at most N points, the whole cloud as before); 5,000 points meet both kinds of cloud."""
     dataset = open_dataset(str(version_4))
-    memory = load_memory(str(version_4))
-    mapped = OSVPDataset(str(version_4), num_points=num_points, seed=SEED)
-    mapped.set_epoch(2)
-    from_stream = streamed(version_4, num_points, epoch=2)
-    from_memory = memory.resampled_keys(np.arange(len(memory)), num_points, SEED, 2)
     sizes = dataset.index.column("num_points").to_numpy()
     assert (sizes > num_points).any() and (num_points < 5000 or (sizes <= num_points).any())
-    for row in range(len(dataset)):
-        truth = window_truth(dataset.keys(row, "points"), num_points, SEED, 2, row)
-        assert np.array_equal(from_stream[row], truth), row
-        assert np.array_equal(from_memory[row], truth), row
-        assert np.array_equal(to_keys(dataset, mapped[row]["points"].numpy()), truth), row
+    truths = [window_truth(dataset.keys(row, "points"), num_points, SEED, 2, row) for row in range(len(dataset))]
+    assert_every_reader_gives(version_4, num_points, 2, truths)
 
 
 def test_another_epoch_reads_another_window(version_4: Path) -> None:
@@ -224,16 +218,8 @@ def test_a_window_is_a_uniform_subsample_of_an_analytic_cloud() -> None:
 def test_an_older_dataset_reads_exactly_as_before(version_3: Path, num_points: int) -> None:
     """Version 3 keeps the older rule in every reader: bit-identical clouds."""
     dataset = open_dataset(str(version_3))
-    memory = load_memory(str(version_3))
-    mapped = OSVPDataset(str(version_3), num_points=num_points, seed=SEED)
-    mapped.set_epoch(1)
-    from_stream = streamed(version_3, num_points, epoch=1)
-    from_memory = memory.resampled_keys(np.arange(len(memory)), num_points, SEED, 1)
-    for row in range(len(dataset)):
-        truth = older_truth(dataset.keys(row, "points"), num_points, SEED, 1, row)
-        assert np.array_equal(from_stream[row], truth), row
-        assert np.array_equal(from_memory[row], truth), row
-        assert torch.equal(mapped[row]["points"], torch.from_numpy(dataset.centres(truth))), row
+    truths = [older_truth(dataset.keys(row, "points"), num_points, SEED, 1, row) for row in range(len(dataset))]
+    assert_every_reader_gives(version_3, num_points, 1, truths)
 
 
 def test_validate_finds_a_cloud_out_of_its_order(version_4: Path, tmp_path: Path) -> None:

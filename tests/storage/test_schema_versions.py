@@ -17,20 +17,6 @@ from storage import StorageError, covers_universe, nearest_cover, open_dataset, 
 from storage.writer import shard_path
 
 
-@pytest.fixture(scope="module")
-def version_1(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("v1") / "ds"
-    fx.build_dataset(str(root), finalise_index=True, schema_version=1)
-    return root
-
-
-@pytest.fixture(scope="module")
-def version_2(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("v2") / "ds"
-    fx.build_dataset(str(root), finalise_index=True, schema_version=2)
-    return root
-
-
 @pytest.fixture
 def ds(version_2: Path, tmp_path: Path) -> Path:
     return fx.copy_dataset(version_2, tmp_path / "ds")

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
+import pytest
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -125,6 +126,14 @@ def build_dataset(
     if finalise_index:
         finalise(location)
     return location
+
+
+def finalised_dataset(factory: pytest.TempPathFactory, schema_version: int) -> Path:
+    """A finalised dataset of every task in layout ``schema_version`` in a fresh folder of ``factory``:
+    what a module-scoped fixture of one layout builds."""
+    root = factory.mktemp(f"v{schema_version}") / "ds"
+    build_dataset(str(root), finalise_index=True, schema_version=schema_version)
+    return root
 
 
 def build_many_tasks(url: str, copies: int) -> Location:
