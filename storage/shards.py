@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import posixpath
 from collections.abc import Iterable
 from typing import Any
 
@@ -22,7 +23,7 @@ from zarr.core.array_spec import ArrayConfigParams
 from zarr.storage import FsspecStore, LocalStore
 
 from schemas.shard import ShardAttributes, array_names, ordered_points
-from storage.codec import COMPRESSORS, RowTaker, decoded_whole
+from storage.codec import COMPRESSORS, RowTaker, decoded_whole, encoded_row_shard
 from storage.location import Location, damaged, first_line, is_temporary
 from storage.store_errors import is_store_failure, storage_failure
 
@@ -81,9 +82,25 @@ def write_shard_group(
                 compressors=COMPRESSORS,
                 config=WRITE_EVERY_CHUNK,
             )
-        if data.size:
+        if data.size and not _wrote_row_shard(location, f"{relative}/{name}", data, array):
             array[...] = data
     group.attrs.put(attributes.model_dump(mode="json"))
+
+
+def _wrote_row_shard(location: Location, relative: str, data: npt.NDArray[Any], array: zarr.Array[Any]) -> bool:
+    """Write a sharded key array's one shard file as zarr would (`storage.codec.encoded_row_shard`,
+    the same bytes for a fraction of zarr's CPU); False, writing nothing, for any other layout."""
+    meta: dict[str, Any] = dict(array.metadata.to_dict())
+    codecs = meta.get("codecs", [])
+    if len(codecs) != 1 or codecs[0].get("name") != "sharding_indexed":
+        return False
+    blob = encoded_row_shard(data, int(codecs[0]["configuration"]["chunk_shape"][0]), meta)
+    if blob is None:
+        return False
+    target = location.path(f"{relative}/c/0/0")
+    location.fs.makedirs(posixpath.dirname(target), exist_ok=True)
+    location.fs.pipe_file(target, blob)
+    return True
 
 
 DAMAGE = (OSError, ValueError, KeyError, TypeError, IndexError, RuntimeError, EOFError)

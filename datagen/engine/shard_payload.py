@@ -152,7 +152,9 @@ def _add_next_view(
 def _in_point_order(points: npt.NDArray[np.int64], seed: int, result: TaskResult, case: int) -> npt.NDArray[np.int64]:
     """A case's cloud (packed keys) in the order version 4 stores it: `schemas.shard.point_order` of its
     sorted keys, so any run of stored points is a uniform random subset of the cloud."""
-    ordered = np.sort(points)  # the rule permutes the sorted set, whatever order the caller holds it in
+    # The rule permutes the sorted set, whatever order the caller holds it in (a sample's set is sorted
+    # already: the check costs a twentieth of the sort it saves).
+    ordered = points if bool((points[1:] > points[:-1]).all()) else np.sort(points)
     return ordered[point_order(seed, result.object_id, result.rotation, case, ordered.size)]
 
 
