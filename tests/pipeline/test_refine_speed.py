@@ -33,7 +33,7 @@ from datagen.pipeline.refine.freespace import DepthBuffers, cropped_depth, depth
 from datagen.pipeline.refine.poco import refiner as poco_refiner
 from datagen.pipeline.refine.poco import spatial
 from datagen.pipeline.refine.poco.inputs import DECODE_CHUNK, query_keys
-from datagen.pipeline.refine.poco.network import PocoModel, neighbour_distances
+from datagen.pipeline.refine.poco.network import PocoModel, neighbour_distances, neighbour_max
 from datagen.pipeline.refine.poco.refiner import BUILTIN_WEIGHTS, PocoRefiner
 from datagen.pipeline.scanning import scan_task
 from datagen.pipeline.task import run_task
@@ -159,6 +159,27 @@ def test_neighbour_distances_is_bit_identical_to_norm() -> None:
         assert torch.equal(neighbour_distances(local), local.norm(dim=1))
     double = torch.randn(1, 3, 10, 16, dtype=torch.float64, generator=generator)
     assert torch.equal(neighbour_distances(double), double.norm(dim=1))
+
+
+def test_neighbour_max_is_bit_identical_to_max() -> None:
+    """The tree of maxima (large tables, power-of-two K) and amax give max's values and zeros' signs."""
+    generator = torch.Generator().manual_seed(1)
+    cases = [
+        torch.randn(1, 16, 3000, 16, generator=generator).relu(),  # the encoder's level 0: the tree
+        torch.randn(1, 8, 3000, 32, generator=generator),
+        -torch.randn(1, 16, 3000, 16, generator=generator).relu(),  # -0.0 beside +0.0 and negatives
+        torch.randn(2, 8, 100, 32, generator=generator),  # small: amax
+        torch.randn(1, 16, 5000, 12, generator=generator),  # K not a power of two: amax
+        torch.randn(1, 4, 10, 1, generator=generator),
+    ]
+    cases[1][0, 3, 7, 5] = float("nan")
+    with torch.inference_mode():
+        for values in cases:
+            for keepdim in (True, False):
+                fast, truth = neighbour_max(values, keepdim), values.max(dim=3, keepdim=keepdim).values
+                assert fast.shape == truth.shape
+                assert torch.equal(fast.nan_to_num(7.0), truth.nan_to_num(7.0))
+                assert torch.equal(fast.signbit(), truth.signbit())
 
 
 @pytest.mark.parametrize("batch", [1, 2])

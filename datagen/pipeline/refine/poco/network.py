@@ -62,13 +62,27 @@ def gather_neighbours(values: Tensor, index: Tensor) -> Tensor:
     return torch.gather(values, 2, flat).view(batch, channels, *index.shape[1:])
 
 
+_TREE_MAX_FROM = 1 << 16
+"""Elements from which `neighbour_max` compares halves instead of calling ``amax``: below it the
+tree's four calls cost more than they save (4x slower on a (2, 8, 100, 32) table)."""
+
+
 def neighbour_max(values: Tensor, keepdim: bool = False, fast: bool = True) -> Tensor:
-    """Max of (B, C, M, K) over K. Without autograd ``amax`` (2x faster: no argmax); with it, or with
+    """Max of (B, C, M, K) over K. Without autograd ``amax``, or a tree of elementwise maxima for a
+    power-of-two K (2x and ~3.5x faster than ``max``: no argmax); with it, or with
     ``fast=False``, ``max(...).values``, whose gradient goes to one of tied maxima where amax's would be
     split among them (ReLU zeros tie often). The values are the same either way."""
     if not fast or (torch.is_grad_enabled() and values.requires_grad):
         return values.max(dim=3, keepdim=keepdim).values
-    return values.amax(dim=3, keepdim=keepdim)
+    width = values.shape[3]
+    if width < 2 or width & (width - 1) or values.numel() < _TREE_MAX_FROM:
+        return values.amax(dim=3, keepdim=keepdim)
+    # A power-of-two K: halves compared elementwise until one column is left, 1.4-1.8x faster than
+    # amax's short inner reduction (K = 16 in the encoder); a maximum is exact, so the same values.
+    while width > 1:
+        width //= 2
+        values = torch.maximum(values[..., :width], values[..., width:])
+    return values if keepdim else values.squeeze(3)
 
 
 def max_pool(values: Tensor, index: Tensor, fast: bool = True) -> Tensor:
