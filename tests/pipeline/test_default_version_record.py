@@ -8,7 +8,7 @@ fresh run must give them again: the recorded run and this one are two runs; work
 Within one machine the pipeline is exact, so the record matches exactly (it did on the machine that
 wrote it). Another CPU may round a float kernel of the network differently (their docstrings,
 `PocoModel.decode_inference`), which can move a key across the threshold; so a cloud's size may move
-by 0.5 % and one label of a task may differ, and no more. ``python tests/pipeline/test_version_labels.py
+by 0.5 % and one label of a task may differ, and no more. ``python tests/pipeline/test_default_version_record.py
 --record`` writes the record again: only for a new default version, judged first
 (`benchmarks/labels/version_labels.py`).
 """
