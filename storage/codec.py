@@ -231,11 +231,11 @@ def _open_row_chunks(location: Location, relative: str) -> _RowChunks | None:
     return _RowChunks(data, shape, dtype, inner, outer[0] // inner[0])
 
 
-def encoded_row_shard(data: npt.NDArray[Any], inner_rows: int, meta: dict[str, Any]) -> bytes | None:
+def encoded_row_shard(data: npt.NDArray[Any], meta: dict[str, Any]) -> bytes | None:
     """The shard file zarr writes for ``data`` (rows x columns) as the one shard of an array whose
-    zarr.json is ``meta``: its inner chunks of ``inner_rows`` rows (the last padded with the fill
-    value, zeros), each little-endian bytes, Blosc as recorded there and a CRC32C, in row order, then
-    the (offset, size) index and its CRC32C. None for any other layout (the caller lets zarr write).
+    zarr.json is ``meta``: its inner chunks of the rows recorded there (the last padded with the fill
+    value, zeros), each little-endian bytes, Blosc as recorded and a CRC32C, in row order, then the
+    (offset, size) index and its CRC32C. None for any other layout (the caller lets zarr write).
     ``meta`` may be zarr's ``metadata.to_dict()`` (tuples) or the parsed file (lists).
 
     Why not zarr: its codec pipeline costs ~0.25 ms an inner chunk beyond the compression itself,
@@ -253,8 +253,9 @@ def encoded_row_shard(data: npt.NDArray[Any], inner_rows: int, meta: dict[str, A
     config = codecs[0]["configuration"]
     inner = [int(size) for size in config["chunk_shape"]]
     outer = [int(size) for size in meta["chunk_grid"]["configuration"]["chunk_shape"]]
+    inner_rows = inner[0]
     if (
-        inner != [inner_rows, data.shape[1]]
+        inner[1:] != [data.shape[1]]
         or outer[1:] != inner[1:]
         or outer[0] % inner_rows
         or outer[0] < data.shape[0]

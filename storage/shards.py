@@ -90,11 +90,7 @@ def write_shard_group(
 def _wrote_row_shard(location: Location, relative: str, data: npt.NDArray[Any], array: zarr.Array[Any]) -> bool:
     """Write a sharded key array's one shard file as zarr would (`storage.codec.encoded_row_shard`,
     the same bytes for a fraction of zarr's CPU); False, writing nothing, for any other layout."""
-    meta: dict[str, Any] = dict(array.metadata.to_dict())
-    codecs = meta.get("codecs", [])
-    if len(codecs) != 1 or codecs[0].get("name") != "sharding_indexed":
-        return False
-    blob = encoded_row_shard(data, int(codecs[0]["configuration"]["chunk_shape"][0]), meta)
+    blob = encoded_row_shard(data, dict(array.metadata.to_dict()))
     if blob is None:
         return False
     target = location.path(f"{relative}/c/0/0")

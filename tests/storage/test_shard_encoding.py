@@ -48,20 +48,21 @@ def test_a_row_shard_is_zarrs_bytes(tmp_path: Path, count: int, rows: int) -> No
     ):
         truth = zarr_written(tmp_path / kind, data, rows)
         meta = zarr.open_array(str(tmp_path / kind / "x"), mode="r").metadata.to_dict()
-        assert encoded_row_shard(data, rows, meta) == truth, kind
+        assert encoded_row_shard(data, meta) == truth, kind
 
 
 def test_another_layout_is_left_to_zarr(tmp_path: Path) -> None:
     data = np.ones((100, 3), dtype=np.int16)
     zarr_written(tmp_path, data, 64)
     meta = zarr.open_array(str(tmp_path / "x"), mode="r").metadata.to_dict()
-    assert encoded_row_shard(data, 64, meta) is not None
-    assert encoded_row_shard(data, 32, meta) is None  # not the recorded inner chunk
-    assert encoded_row_shard(data[:, :2], 64, meta) is None  # not the recorded width
+    assert encoded_row_shard(data, meta) is not None
+    assert encoded_row_shard(data[:, :2], meta) is None  # not the recorded width
+    assert encoded_row_shard(np.ones((100, 3), dtype=np.int32), meta) is None  # not the recorded type size
+    assert encoded_row_shard(np.ones((200, 3), dtype=np.int16), meta) is None  # more rows than the shard
     other = dict(meta, fill_value=7)
-    assert encoded_row_shard(data, 64, other) is None  # padding would not be zeros
+    assert encoded_row_shard(data, other) is None  # padding would not be zeros
     plain = dict(meta, codecs=[{"name": "bytes", "configuration": {"endian": "little"}}])
-    assert encoded_row_shard(data, 64, plain) is None  # not sharded
+    assert encoded_row_shard(data, plain) is None  # not sharded
 
 
 @pytest.mark.parametrize("schema_version", [3, 4])
