@@ -203,16 +203,17 @@ class _RowChunks:
         return found
 
 
-def _open_row_chunks(location: Location, relative: str) -> _RowChunks | None:
-    """The row-chunked shard file of the array at ``relative``, or None for another layout."""
-    meta = _regular_array(location, relative)
-    codecs = meta["codecs"] if meta is not None else []
-    if meta is None or len(codecs) != 1 or codecs[0].get("name") != "sharding_indexed":
+def _row_shard_layout(meta: dict[str, Any]) -> tuple[tuple[int, ...], int, tuple[int, ...]] | None:
+    """(shape, shard rows, inner chunk shape) of a 2-d, non-empty array of one shard of row chunks with
+    its index at the end, every codec as the writer writes it (``meta``: the zarr.json, parsed or as
+    zarr's ``metadata.to_dict()``), else None: the one layout read (`RowTaker`) and written
+    (`encoded_row_shard`) here."""
+    codecs = list(meta.get("codecs", ()))
+    if len(codecs) != 1 or codecs[0].get("name") != "sharding_indexed":
         return None
-    grid = meta["chunk_grid"]
-    shape = tuple(int(size) for size in meta["shape"])
-    outer = tuple(int(size) for size in grid["configuration"]["chunk_shape"])
     config = codecs[0]["configuration"]
+    shape = tuple(int(size) for size in meta["shape"])
+    outer = tuple(int(size) for size in meta["chunk_grid"]["configuration"]["chunk_shape"])
     inner = tuple(int(size) for size in config["chunk_shape"])
     if (
         len(shape) != 2
@@ -221,14 +222,24 @@ def _open_row_chunks(location: Location, relative: str) -> _RowChunks | None:
         or inner[1:] != shape[1:]
         or outer[0] % inner[0]
         or config.get("index_location", "end") != "end"
-        or config.get("index_codecs") != [PLAIN_BYTES, CHECKSUM]
-        or not _plain(config["codecs"])
+        or list(config.get("index_codecs", ())) != [PLAIN_BYTES, CHECKSUM]
+        or not _plain(list(config["codecs"]))
         or math.prod(shape) == 0
     ):
         return None
+    return shape, outer[0], inner
+
+
+def _open_row_chunks(location: Location, relative: str) -> _RowChunks | None:
+    """The row-chunked shard file of the array at ``relative``, or None for another layout."""
+    meta = _regular_array(location, relative)
+    layout = _row_shard_layout(meta) if meta is not None else None
+    if meta is None or layout is None:
+        return None
+    shape, shard_rows, inner = layout
     dtype = np.dtype(meta["data_type"]).newbyteorder("<")
     data = location.read_bytes(f"{relative}/c/0/0")
-    return _RowChunks(data, shape, dtype, inner, outer[0] // inner[0])
+    return _RowChunks(data, shape, dtype, inner, shard_rows // inner[0])
 
 
 def encoded_row_shard(data: npt.NDArray[Any], meta: dict[str, Any]) -> bytes | None:
@@ -241,30 +252,12 @@ def encoded_row_shard(data: npt.NDArray[Any], meta: dict[str, Any]) -> bytes | N
     Why not zarr: its codec pipeline costs ~0.25 ms an inner chunk beyond the compression itself,
     which for a version-4 ``points_keys`` of hundreds of 2,048-row chunks doubled a task's write.
     tests/storage/test_shard_encoding.py checks these bytes against zarr's own."""
-    codecs = meta.get("codecs", [])
-    if (
-        len(codecs) != 1
-        or codecs[0].get("name") != "sharding_indexed"
-        or meta.get("fill_value") != 0
-        or data.ndim != 2
-        or data.shape[0] == 0
-    ):
+    layout = _row_shard_layout(meta)
+    if layout is None or meta.get("fill_value") != 0 or data.shape != layout[0]:
         return None
-    config = codecs[0]["configuration"]
-    inner = [int(size) for size in config["chunk_shape"]]
-    outer = [int(size) for size in meta["chunk_grid"]["configuration"]["chunk_shape"]]
+    _, shard_rows, inner = layout
     inner_rows = inner[0]
-    if (
-        inner[1:] != [data.shape[1]]
-        or outer[1:] != inner[1:]
-        or outer[0] % inner_rows
-        or outer[0] < data.shape[0]
-        or config.get("index_location", "end") != "end"
-        or list(config.get("index_codecs", ())) != [PLAIN_BYTES, CHECKSUM]
-        or not _plain(list(config["codecs"]))
-    ):
-        return None
-    blosc = config["codecs"][1]["configuration"]
+    blosc = meta["codecs"][0]["configuration"]["codecs"][1]["configuration"]
     if blosc.get("shuffle") not in BLOSC_SHUFFLES or int(blosc.get("typesize", 0)) != data.dtype.itemsize:
         return None
     compressor = numcodecs.blosc.Blosc(
@@ -274,12 +267,12 @@ def encoded_row_shard(data: npt.NDArray[Any], meta: dict[str, Any]) -> bytes | N
         blocksize=int(blosc.get("blocksize", 0)),
         typesize=data.dtype.itemsize,
     )
-    padded = np.zeros((outer[0], data.shape[1]), dtype=data.dtype.newbyteorder("<"))
+    padded = np.zeros((shard_rows, data.shape[1]), dtype=data.dtype.newbyteorder("<"))
     padded[: data.shape[0]] = data
     parts: list[bytes] = []
-    index = np.empty((outer[0] // inner_rows, 2), dtype="<u8")
+    index = np.empty((shard_rows // inner_rows, 2), dtype="<u8")
     offset = 0
-    for number, start in enumerate(range(0, outer[0], inner_rows)):
+    for number, start in enumerate(range(0, shard_rows, inner_rows)):
         body = compressor.encode(padded[start : start + inner_rows])
         parts.append(body)
         parts.append(np.uint32(google_crc32c.value(body)).astype("<u4").tobytes())
