@@ -10,6 +10,7 @@ from datagen.engine import serve as serve_loop
 from datagen.engine.driver import ProgressCallback, run_job
 from datagen.engine.job_plan import plan_job
 from datagen.engine.serve import LEDGER_FILE, ledger_for
+from datagen.engine.worker import TaskBody, execute_task
 from datagen.errors import DatagenError
 from datagen.settings import RunSettings
 from jobs.ledger import Job, LedgerError
@@ -47,11 +48,14 @@ def submit(
     settings: RunSettings | None = None,
     progress: ProgressCallback | None = None,
     storage_options: dict[str, Any] | None = None,
+    body: TaskBody = execute_task,
 ) -> Job:
-    """Plan and run a job now (local Ray unless ``settings.ray_address``); returns the finished job."""
+    """Plan and run a job now (local Ray unless ``settings.ray_address``); returns the finished job.
+    ``body`` is what each task runs (`datagen.engine.worker.TaskBody`; the engine's benchmarks and
+    tests pass `datagen.engine.worker.empty_task`)."""
     settings = settings or RunSettings()
     job = enqueue(objects, config, settings)
-    return resume(job.job_id, settings, progress, storage_options)
+    return resume(job.job_id, settings, progress, storage_options, body=body)
 
 
 def resume(
@@ -59,6 +63,7 @@ def resume(
     settings: RunSettings | None = None,
     progress: ProgressCallback | None = None,
     storage_options: dict[str, Any] | None = None,
+    body: TaskBody = execute_task,
 ) -> Job:
     """Run what is not done of a job; finished tasks are kept, never recomputed.
 
@@ -79,6 +84,7 @@ def resume(
                 storage_options=options,
                 refiner_gpus=settings.refiner_gpus,
                 progress=progress,
+                body=body,
             )
         except LedgerError:
             raise  # the ledger itself cannot be used: nothing to record the failure in

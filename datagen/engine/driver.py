@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from datagen.engine.worker import TaskOutcome, execute_task
+from datagen.engine.worker import TaskBody, TaskOutcome, execute_task
 from datagen.errors import ConfigError, DatagenError
 from datagen.pipeline.step_timing import step_totals
 from datagen.pipeline.viewspace import build_view_space
@@ -169,6 +169,7 @@ def _shutdown_client(ray: Any) -> None:
 
 
 def _remote_execute(
+    body: TaskBody,
     task: TaskSpec,
     config: GenerationConfig,
     out: str,
@@ -180,7 +181,7 @@ def _remote_execute(
 ) -> tuple[TaskOutcome, str]:
     import ray
 
-    outcome = execute_task(task, config, out, attempt_id, storage_options, device, config_hash, schema_version)
+    outcome = body(task, config, out, attempt_id, storage_options, device, config_hash, schema_version)
     context = ray.get_runtime_context()
     return outcome, f"{context.get_node_id()[:12]}@{socket.gethostname()}"
 
@@ -213,6 +214,7 @@ def run_job(
     max_in_flight: int | None = None,
     refiner_gpus: float = 0.0,
     wait_for_others: bool = True,
+    body: TaskBody = execute_task,
 ) -> Job:
     """Run every runnable task of a job to completion (or cancellation); returns the job.
 
@@ -223,6 +225,8 @@ def run_job(
 
     With ``wait_for_others`` the call returns only when the job is finished or cancelled, also when
     other drivers hold some of its tasks; without it, it returns as soon as it can claim nothing.
+    ``body`` is what each task runs (`datagen.engine.worker.TaskBody`): `execute_task` unless the
+    engine alone is measured or tested.
     """
     import ray
 
@@ -269,6 +273,7 @@ def run_job(
                 for claim in ledger.claim(job_id, owner, LEASE_SECONDS, free):
                     task = tasks_by_id[claim.task.task_id]
                     ref = remote.remote(
+                        body,
                         task,
                         config,
                         job.out,

@@ -17,7 +17,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from datagen.engine.job_plan import object_spec
 from datagen.engine.shard_payload import task_payload
@@ -54,6 +54,42 @@ class TaskOutcome:
     reused: bool = False
     """True when the task was already committed and nothing was computed."""
     seconds: float = 0.0
+
+
+class TaskBody(Protocol):
+    """What the engine runs for each claimed task inside a Ray task (`datagen.engine.driver.run_job`'s
+    ``body``): `execute_task` makes and commits the task's samples; `empty_task` does nothing, so the
+    driver, the ledger and Ray's scheduling can be measured and tested alone. A body is a module-level
+    function (Ray ships it by reference, so every worker imports it); it reports bad input as an
+    outcome and raises only for bugs or a failed store."""
+
+    def __call__(
+        self,
+        spec: TaskSpec,
+        config: GenerationConfig,
+        out: str,
+        attempt_id: str,
+        storage_options: dict[str, Any] | None = None,
+        device: str = "cpu",
+        config_hash: str | None = None,
+        schema_version: int = SCHEMA_VERSION,
+    ) -> TaskOutcome: ...
+
+
+def empty_task(
+    spec: TaskSpec,
+    config: GenerationConfig,
+    out: str,
+    attempt_id: str,
+    storage_options: dict[str, Any] | None = None,
+    device: str = "cpu",
+    config_hash: str | None = None,
+    schema_version: int = SCHEMA_VERSION,
+) -> TaskOutcome:
+    """A `TaskBody` that computes and writes nothing: done at once with ``rotation + 1`` samples (so sums
+    over tasks are checkable). For measuring the engine's own cost per task (``benchmarks/scale``) and
+    testing it at scale in seconds; its dataset holds no shards."""
+    return TaskOutcome(spec.task_id, True, spec.rotation + 1, f"{attempt_id}-empty")
 
 
 def execute_task(
