@@ -12,17 +12,24 @@ machine, PID, process start time) with a heartbeat it renews together with its l
 machine, `jobs.liveness`) or, elsewhere, when it has not renewed its heartbeat for a lease period.
 A lost driver's tasks can be claimed at once, without waiting for its leases to expire; `lost_driver`
 tells `datagen status` that a running job has no live driver left.
+
+Scale: a job of 100,000 tasks costs each call what it touches, not what the job holds. The task
+counts (and samples) per state live in ``task_counts``, kept by triggers on every change of a
+task's state or samples, whoever makes it; claims and the other per-tick queries read index ranges
+of the states they need (pending, running), never every task of the job; a job's spec is small (its
+tasks are rows of their own) and a task's spec is parsed only when asked for.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import sqlite3
 import time
 import uuid
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -72,7 +79,33 @@ CREATE TABLE IF NOT EXISTS drivers (
     lease REAL NOT NULL
 );
 CREATE INDEX IF NOT EXISTS drivers_by_job ON drivers (job_id);
+CREATE TABLE IF NOT EXISTS task_counts (
+    job_id TEXT NOT NULL,
+    state TEXT NOT NULL,
+    tasks INTEGER NOT NULL,
+    samples INTEGER NOT NULL,
+    PRIMARY KEY (job_id, state)
+);
 """
+
+_COUNT_NEW = (
+    "INSERT INTO task_counts (job_id, state, tasks, samples) "
+    "VALUES (new.job_id, new.state, 1, COALESCE(new.samples, 0)) "
+    "ON CONFLICT (job_id, state) DO UPDATE SET tasks = tasks + 1, samples = samples + excluded.samples;"
+)
+_UNCOUNT_OLD = (
+    "UPDATE task_counts SET tasks = tasks - 1, samples = samples - COALESCE(old.samples, 0) "
+    "WHERE job_id = old.job_id AND state = old.state;"
+)
+_TRIGGERS = (
+    f"CREATE TRIGGER IF NOT EXISTS count_inserted_task AFTER INSERT ON tasks BEGIN {_COUNT_NEW} END",
+    f"CREATE TRIGGER IF NOT EXISTS count_deleted_task AFTER DELETE ON tasks BEGIN {_UNCOUNT_OLD} END",
+    "CREATE TRIGGER IF NOT EXISTS count_changed_task AFTER UPDATE OF job_id, state, samples ON tasks "
+    "WHEN old.job_id IS NOT new.job_id OR old.state IS NOT new.state OR old.samples IS NOT new.samples "
+    f"BEGIN {_UNCOUNT_OLD} {_COUNT_NEW} END",
+)
+"""``task_counts`` follows every task row: tasks and their samples per job and state, so progress,
+status and the end of a job read a handful of rows instead of counting every task."""
 
 DEFAULT_LEASE = 120.0
 """Seconds a driver's leases (and heartbeat) stay valid without renewal, unless it says otherwise."""
@@ -100,7 +133,9 @@ class Task:
     task_id: str
     position: int
     state: str
-    spec: dict[str, Any]
+    spec_text: str = field(repr=False)
+    """The task's spec as stored (sorted-key JSON); `spec` parses it when asked, so listing a job's
+    100,000 tasks parses none."""
     attempts: int
     attempt_id: str | None
     lease_owner: str | None
@@ -108,6 +143,10 @@ class Task:
     error: str | None
     placement: str | None
     samples: int | None
+
+    @functools.cached_property
+    def spec(self) -> dict[str, Any]:
+        return dict(json.loads(self.spec_text))
 
 
 @dataclass(frozen=True)
@@ -186,9 +225,18 @@ class Ledger:
 
         def create_schema() -> None:
             with self._transaction() as db:
+                counted = db.execute("SELECT 1 FROM sqlite_master WHERE type = 'table' AND name = 'task_counts'")
+                had_counts = counted.fetchone() is not None
                 for statement in _SCHEMA.strip().split(";"):
                     if statement.strip():
                         db.execute(statement)
+                for trigger in _TRIGGERS:
+                    db.execute(trigger)
+                if not had_counts:  # a ledger from before the counts: count its tasks once
+                    db.execute(
+                        "INSERT INTO task_counts (job_id, state, tasks, samples) SELECT job_id, state, COUNT(*), "
+                        "COALESCE(SUM(samples), 0) FROM tasks GROUP BY job_id, state"
+                    )
 
         self._retry_locked(create_schema, timeout)
 
@@ -221,9 +269,10 @@ class Ledger:
 
     # -- jobs ---------------------------------------------------------------------------------
     def create_job(
-        self, job_id: str, spec: dict[str, Any], out: str, tasks: Sequence[tuple[str, dict[str, Any]]]
+        self, job_id: str, spec: dict[str, Any], out: str, tasks: Iterable[tuple[str, dict[str, Any]]]
     ) -> Job:
-        """Add a pending job with its tasks (in order); idempotent for an existing job id."""
+        """Add a pending job with its tasks (in order; read once, as they come); idempotent for an
+        existing job id. Each task's spec is a row of its own: keep them out of ``spec``."""
         now = time.time()
         with self._transaction() as db:
             exists = db.execute("SELECT 1 FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
@@ -234,10 +283,10 @@ class Ledger:
                 )
                 db.executemany(
                     "INSERT INTO tasks (job_id, task_id, position, state, spec, updated) VALUES (?, ?, ?, ?, ?, ?)",
-                    [
+                    (
                         (job_id, task_id, position, PENDING, json.dumps(task_spec, sort_keys=True), now)
                         for position, (task_id, task_spec) in enumerate(tasks)
-                    ],
+                    ),
                 )
         return self.job(job_id)
 
@@ -246,6 +295,13 @@ class Ledger:
         if row is None:
             raise LedgerError(f"no job {job_id!r} in {self.path}; 'datagen status' lists the jobs")
         return _job(row)
+
+    def job_state(self, job_id: str) -> str:
+        """The job's state alone (a driver looks at it every tick; the spec is not read)."""
+        row = self._db.execute("SELECT state FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
+        if row is None:
+            raise LedgerError(f"no job {job_id!r} in {self.path}; 'datagen status' lists the jobs")
+        return str(row["state"])
 
     def jobs(self) -> list[Job]:
         """Every job, oldest first."""
@@ -311,7 +367,7 @@ class Ledger:
         if any(not d.lost(now) for d in drivers):
             return None
         known = {d.driver_id for d in drivers}
-        running = [t for t in self.tasks(job_id) if t.state == RUNNING]
+        running = self.tasks(job_id, (RUNNING,))
         if any(t.lease_owner not in known and (t.lease_expires or 0.0) >= now for t in running):
             return None  # a holder this ledger has no record of, under a live lease
         if drivers:
@@ -380,10 +436,10 @@ class Ledger:
                     db.execute("DELETE FROM drivers WHERE driver_id = ?", (driver.driver_id,))
             marks = ", ".join("?" for _ in live)
             held_by_live = f" AND NOT (state = ? AND lease_owner IN ({marks}))" if live else ""
-            db.execute(
+            db.execute(  # every state but done, named so that the index skips the done tasks
                 "UPDATE tasks SET state = ?, lease_owner = NULL, lease_expires = NULL, updated = ? "
-                f"WHERE job_id = ? AND state != ?{held_by_live}",
-                (PENDING, now, job_id, DONE, *([RUNNING, *live] if live else [])),
+                f"WHERE job_id = ? AND state IN (?, ?, ?, ?){held_by_live}",
+                (PENDING, now, job_id, PENDING, RUNNING, FAILED, CANCELLED, *([RUNNING, *live] if live else [])),
             )
             db.execute(
                 "UPDATE jobs SET state = ?, updated = ? WHERE job_id = ? AND NOT (state = ? AND ?)",
@@ -411,8 +467,26 @@ class Ledger:
         return self.job(job_id)
 
     # -- tasks --------------------------------------------------------------------------------
-    def tasks(self, job_id: str) -> list[Task]:
-        return [_task(r) for r in self._db.execute("SELECT * FROM tasks WHERE job_id = ? ORDER BY position", (job_id,))]
+    def tasks(self, job_id: str, states: Sequence[str] | None = None) -> list[Task]:
+        """The job's tasks in order (only those in ``states``, when given: read from the index)."""
+        return list(self.each_task(job_id, states))
+
+    def each_task(self, job_id: str, states: Sequence[str] | None = None) -> Iterator[Task]:
+        """`tasks`, one at a time (a listing of 100,000 tasks need not be held at once)."""
+        if states is None:
+            rows = self._db.execute("SELECT * FROM tasks WHERE job_id = ? ORDER BY position", (job_id,))
+        else:
+            marks = ", ".join("?" for _ in states)
+            rows = self._db.execute(
+                f"SELECT * FROM tasks WHERE job_id = ? AND state IN ({marks}) ORDER BY position", (job_id, *states)
+            )
+        for row in rows:
+            yield _task(row)
+
+    def task_ids(self, job_id: str) -> list[str]:
+        """The job's task ids in order."""
+        rows = self._db.execute("SELECT task_id FROM tasks WHERE job_id = ? ORDER BY position", (job_id,))
+        return [str(row["task_id"]) for row in rows]
 
     def task(self, job_id: str, task_id: str) -> Task:
         row = self._db.execute("SELECT * FROM tasks WHERE job_id = ? AND task_id = ?", (job_id, task_id)).fetchone()
@@ -421,8 +495,11 @@ class Ledger:
         return _task(row)
 
     def task_counts(self, job_id: str) -> dict[str, int]:
-        rows = self._db.execute("SELECT state, COUNT(*) AS n FROM tasks WHERE job_id = ? GROUP BY state", (job_id,))
-        return {r["state"]: int(r["n"]) for r in rows}
+        """Tasks per state (states with none left out), from the counts the triggers keep."""
+        rows = self._db.execute(
+            "SELECT state, tasks FROM task_counts WHERE job_id = ? AND tasks > 0 ORDER BY state", (job_id,)
+        )
+        return {r["state"]: int(r["tasks"]) for r in rows}
 
     def claim(self, job_id: str, owner: str, lease: float, limit: int = 1) -> list[Claim]:
         """Up to ``limit`` runnable tasks (pending, running with an expired lease, or running under
@@ -433,12 +510,15 @@ class Ledger:
             job = db.execute("SELECT state FROM jobs WHERE job_id = ?", (job_id,)).fetchone()
             if job is None or job["state"] in (CANCELLED, DONE, FAILED):
                 return []
-            condition, params = self._runnable(db, job_id, now)
-            rows = db.execute(
-                f"SELECT * FROM tasks WHERE job_id = ? AND {condition} ORDER BY position LIMIT ?",
-                (job_id, *params, limit),
+            pending = db.execute(
+                "SELECT * FROM tasks WHERE job_id = ? AND state = ? ORDER BY position LIMIT ?", (job_id, PENDING, limit)
             ).fetchall()
-            for row in rows:
+            condition, params = self._reclaimable(db, job_id, now)
+            stale = db.execute(
+                f"SELECT * FROM tasks WHERE job_id = ? AND state = ? AND {condition} ORDER BY position LIMIT ?",
+                (job_id, RUNNING, *params, limit),
+            ).fetchall()
+            for row in sorted([*pending, *stale], key=lambda r: int(r["position"]))[:limit]:
                 attempt_id = f"a{int(row['attempts']) + 1}-{uuid.uuid4().hex[:12]}"
                 db.execute(
                     "UPDATE tasks SET state = ?, attempts = attempts + 1, attempt_id = ?, lease_owner = ?, "
@@ -453,9 +533,10 @@ class Ledger:
 
     def claimable(self, job_id: str) -> int:
         """How many tasks `claim` would hand out now (ignoring the job's state)."""
-        condition, params = self._runnable(self._db, job_id, time.time())
-        row = self._db.execute(f"SELECT COUNT(*) AS n FROM tasks WHERE job_id = ? AND {condition}", (job_id, *params))
-        return int(row.fetchone()["n"])
+        condition, params = self._reclaimable(self._db, job_id, time.time())
+        query = f"SELECT COUNT(*) AS n FROM tasks WHERE job_id = ? AND state = ? AND {condition}"
+        row = self._db.execute(query, (job_id, RUNNING, *params))
+        return self.task_counts(job_id).get(PENDING, 0) + int(row.fetchone()["n"])
 
     def holders(self, job_id: str) -> Holders | None:
         """Who holds a job's unfinished tasks when a driver can claim none of them (None when some
@@ -463,7 +544,7 @@ class Ledger:
         if self.claimable(job_id):
             return None
         now = time.time()
-        running = [t for t in self.tasks(job_id) if t.state == RUNNING]
+        running = self.tasks(job_id, (RUNNING,))
         if not running:
             return None
         drivers = {d.driver_id: d for d in self.drivers(job_id)}
@@ -483,20 +564,21 @@ class Ledger:
             until=max(unknown.values(), default=now),
         )
 
-    def _runnable(self, db: sqlite3.Connection, job_id: str, now: float) -> tuple[str, list[Any]]:
-        """The SQL condition (and its parameters) of a task that may be claimed now: pending,
-        running under an expired lease, or running under a driver known to be lost."""
+    def _reclaimable(self, db: sqlite3.Connection, job_id: str, now: float) -> tuple[str, list[Any]]:
+        """The SQL condition (and its parameters) of a *running* task that may be claimed now: its
+        lease expired, or its driver is known to be lost. With the pending tasks, these are what
+        `claim` hands out; each is read from the index's range of running tasks alone."""
         rows = db.execute(
             "SELECT DISTINCT d.* FROM tasks t JOIN drivers d ON d.driver_id = t.lease_owner "
             "WHERE t.job_id = ? AND t.state = ? AND t.lease_expires >= ?",
             (job_id, RUNNING, now),
         )
         lost = [driver.driver_id for driver in (_driver(r) for r in rows) if driver.lost(now)]
-        condition = "(state = ? OR (state = ? AND lease_expires < ?)"
-        params: list[Any] = [PENDING, RUNNING, now]
+        condition = "(lease_expires < ?"
+        params: list[Any] = [now]
         if lost:
-            condition += f" OR (state = ? AND lease_owner IN ({', '.join('?' for _ in lost)}))"
-            params += [RUNNING, *lost]
+            condition += f" OR lease_owner IN ({', '.join('?' for _ in lost)})"
+            params += lost
         return condition + ")", params
 
     def renew(self, job_id: str, owner: str, lease: float) -> None:
@@ -511,11 +593,11 @@ class Ledger:
             db.execute("UPDATE drivers SET heartbeat = ?, lease = ? WHERE driver_id = ?", (now, lease, owner))
 
     def done_samples(self, job_id: str) -> int:
-        """Samples of the job's done tasks, whoever ran them."""
+        """Samples of the job's done tasks, whoever ran them (from the counts the triggers keep)."""
         row = self._db.execute(
-            "SELECT COALESCE(SUM(samples), 0) AS n FROM tasks WHERE job_id = ? AND state = ?", (job_id, DONE)
+            "SELECT samples FROM task_counts WHERE job_id = ? AND state = ?", (job_id, DONE)
         ).fetchone()
-        return int(row["n"])
+        return int(row["samples"]) if row is not None else 0
 
     def release(self, job_id: str, task_id: str, attempt_id: str) -> bool:
         """Give a claimed task back (pending again), e.g. when its worker was lost."""
@@ -586,7 +668,7 @@ def _task(row: sqlite3.Row) -> Task:
         task_id=row["task_id"],
         position=row["position"],
         state=row["state"],
-        spec=json.loads(row["spec"]),
+        spec_text=row["spec"],
         attempts=row["attempts"],
         attempt_id=row["attempt_id"],
         lease_owner=row["lease_owner"],
