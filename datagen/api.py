@@ -32,12 +32,12 @@ def enqueue(
     settings = settings or RunSettings()
     resolved = config if isinstance(config, GenerationConfig) else load_config(config)
     plan = plan_job(objects, resolved, out="")
-    out = settings.out or default_out(settings, plan.job_id)
-    plan = plan.model_copy(update={"out": out})
-    tasks = [(t.task_id, t.model_dump(mode="json")) for t in plan.tasks]
+    out = settings.out or default_out(settings, plan.spec.job_id)
+    spec = plan.spec.model_copy(update={"out": out})
+    tasks = ((t.task_id, t.model_dump(mode="json")) for t in plan.tasks)
     with_ledger = ledger_for(settings)
     try:
-        return with_ledger.create_job(plan.job_id, plan.model_dump(mode="json"), out, tasks)
+        return with_ledger.create_job(spec.job_id, spec.model_dump(mode="json"), out, tasks)
     finally:
         with_ledger.close()
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from schemas.config import GenerationConfig, stored_config
 
@@ -38,7 +38,10 @@ class TaskSpec(BaseModel):
 
 
 class JobSpec(BaseModel):
-    """A dataset job: a config, an output URL and its tasks (plus object lines that failed to resolve)."""
+    """A dataset job: a config, an output URL, its objects file and the lines of it that failed to resolve.
+
+    Its tasks are not part of it: the ledger keeps each `TaskSpec` as a row of its own, so a job of
+    100,000 tasks is not one document that every look at the job parses."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -46,8 +49,16 @@ class JobSpec(BaseModel):
     objects_file: str
     out: str
     config: GenerationConfig
-    tasks: list[TaskSpec]
     line_errors: list[str] = Field(default_factory=list)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _without_tasks(cls, value: Any) -> Any:
+        """A job ledgered before its tasks were rows of their own kept a copy of them here; the rows
+        (the same specs) are the ones read."""
+        if isinstance(value, dict) and "tasks" in value:
+            return {key: item for key, item in value.items() if key != "tasks"}
+        return value
 
     @field_validator("config", mode="before")
     @classmethod

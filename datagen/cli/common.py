@@ -6,7 +6,8 @@ Command modules import this module and nothing else from `datagen.cli`; `datagen
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import itertools
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
@@ -69,10 +70,11 @@ def say(text: str) -> None:
 Cell = str | Text
 
 
-def print_rows(columns: list[str], rows: list[list[Cell]], out: Console | None = None) -> None:
+def print_rows(columns: list[str], rows: Iterable[list[Cell]], out: Console | None = None) -> None:
     """A rich table on a terminal (``str`` cells are plain text, not markup); elsewhere (a pipe, a file,
     a test runner) a tab-separated header and one tab-separated line per row, never wrapped, so a long
-    message stays on its line for grep and cut."""
+    message stays on its line for grep and cut. Rows are written as they come there (a listing of
+    100,000 rows is never held)."""
     out = out or console
     if out.is_terminal:
         table = Table(*columns)
@@ -81,8 +83,8 @@ def print_rows(columns: list[str], rows: list[list[Cell]], out: Console | None =
         out.print(table)
         return
     # Written past rich, which would expand the tabs to spaces.
-    lines: list[list[Cell]] = [list(columns), *rows]
-    for cells in lines:
+    header: list[Cell] = list(columns)
+    for cells in itertools.chain([header], rows):
         plain = (cell.plain if isinstance(cell, Text) else cell for cell in cells)
         out.file.write("\t".join(" ".join(text.split("\t")) for text in plain) + "\n")
     out.file.flush()

@@ -16,12 +16,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from datagen.cli.common import console, error_console, say, user_errors
+from datagen.cli.common import Cell, console, error_console, print_rows, say, user_errors
 from datagen.engine.driver import JobProgress, ProgressCallback
 from datagen.pipeline.step_timing import step_lines, totals_from_json
 from datagen.settings import RunSettings, default_home
 from jobs.ledger import DONE, RUNNING, Job
-from schemas.jobs import JobSpec
 
 HomeOption = Annotated[
     Path | None,
@@ -132,9 +131,13 @@ def submit(
     with user_errors():
         settings = _settings(home, out, address, workers, refiner_gpus)
         job = api.enqueue(objects, config, settings)
-        tasks = JobSpec.model_validate(job.spec).tasks
+        ledger = api.ledger_for(settings)
+        try:
+            tasks = sum(ledger.task_counts(job.job_id).values())
+        finally:
+            ledger.close()
         console.print(
-            f"job {job.job_id}: {len(tasks)} tasks -> {job.out}",
+            f"job {job.job_id}: {tasks} tasks -> {job.out}",
             markup=False,
             highlight=False,
             soft_wrap=True,
@@ -172,7 +175,7 @@ def status(
     job_id: Annotated[str | None, typer.Argument(help="Job id; all jobs when omitted.")] = None,
     home: HomeOption = None,
 ) -> None:
-    """Jobs and their task counts (one job: every task)."""
+    """Jobs and their task counts (one job: every task, one line each outside a terminal)."""
     from datagen import api
 
     with user_errors():
@@ -208,18 +211,19 @@ def status(
             for hint in hints:
                 say(hint)
             if job_id:
-                tasks = Table("task", "state", "attempts", "samples", "placement", "error")
-                for task in ledger.tasks(job_id):
-                    lost_task = task.state == RUNNING and job_id in lost_jobs
-                    tasks.add_row(
+                lost_tasks = job_id in lost_jobs
+                rows: Iterator[list[Cell]] = (
+                    [
                         task.task_id,
-                        f"{task.state} (driver lost)" if lost_task else task.state,
+                        f"{task.state} (driver lost)" if lost_tasks and task.state == RUNNING else task.state,
                         str(task.attempts),
                         str(task.samples or ""),
                         task.placement or "",
                         Text(task.error or "", style="red"),
-                    )
-                console.print(tasks)
+                    ]
+                    for task in ledger.each_task(job_id)
+                )
+                print_rows(["task", "state", "attempts", "samples", "placement", "error"], rows)
         finally:
             ledger.close()
 

@@ -233,7 +233,7 @@ def run_job(
     job = ledger.job(job_id)
     spec = JobSpec.model_validate(job.spec)
     config = spec.config
-    tasks_by_id = {task.task_id: task for task in spec.tasks}
+    total = sum(ledger.task_counts(job_id).values())
     location = open_location(job.out, storage_options)
     info = dataset_info(config)
     with _store_errors(job.out):
@@ -243,7 +243,7 @@ def run_job(
         for number, line_error in enumerate(spec.line_errors):
             origin, _, message = line_error.partition(": ")
             write_failure(location, failure_record(f"line-{number:04d}", message, origin=origin))
-    ensure_ray(address, num_cpus, _waiting_notice(progress, len(spec.tasks)))
+    ensure_ray(address, num_cpus, _waiting_notice(progress, total))
     if refiner_gpus > 0 and not ray.cluster_resources().get("GPU", 0):
         raise ConfigError(
             f"refiner_gpus = {refiner_gpus:g} but the Ray cluster has no GPU; drop --refiner-gpus to refine on CPU"
@@ -256,13 +256,14 @@ def run_job(
         )
         device = "cuda" if refiner_gpus > 0 else "cpu"
         capacity = max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1)))
-        state = JobProgress(total=len(spec.tasks))
+        state = JobProgress(total=total)
         _count(ledger, job_id, state)
-        in_flight: dict[Any, tuple[str, str]] = {}
+        in_flight: dict[Any, tuple[TaskSpec, str]] = {}
+        """Ray reference -> the task and the attempt it runs: the only tasks the driver holds."""
         last_renew = time.monotonic()
         cancelled = False
         while True:
-            job_state = ledger.job(job_id).state
+            job_state = ledger.job_state(job_id)
             if job_state == CANCELLED:
                 cancelled = True
                 for ref in in_flight:
@@ -271,7 +272,7 @@ def run_job(
             free = capacity - len(in_flight)
             if free > 0:
                 for claim in ledger.claim(job_id, owner, LEASE_SECONDS, free):
-                    task = tasks_by_id[claim.task.task_id]
+                    task = TaskSpec.model_validate(claim.task.spec)
                     ref = remote.remote(
                         body,
                         task,
@@ -283,13 +284,13 @@ def run_job(
                         info.config_hash,
                         info.schema_version,
                     )
-                    in_flight[ref] = (claim.task.task_id, claim.attempt_id)
+                    in_flight[ref] = (task, claim.attempt_id)
             if in_flight:
                 state.waiting = ""
                 ready, _ = ray.wait(list(in_flight), num_returns=1, timeout=1.0)
                 for ref in ready:
-                    task_id, attempt_id = in_flight.pop(ref)
-                    _record(ledger, job_id, task_id, attempt_id, ref, state, location, tasks_by_id[task_id])
+                    task, attempt_id = in_flight.pop(ref)
+                    _record(ledger, job_id, task, attempt_id, ref, state, location)
             else:
                 counts = ledger.task_counts(job_id)
                 if not counts.get(PENDING) and not counts.get(RUNNING):
@@ -334,7 +335,8 @@ def waiting_line(job_id: str, holders: Holders) -> str:
 
 
 def _count(ledger: Ledger, job_id: str, state: JobProgress) -> None:
-    """The job's progress from the ledger: every driver's work, not only this one's."""
+    """The job's progress from the ledger: every driver's work, not only this one's (a few rows of
+    the counts the ledger keeps, whatever the job's size)."""
     counts = ledger.task_counts(job_id)
     state.done = counts.get(DONE, 0)
     state.failed = counts.get(FAILED, 0)
@@ -346,23 +348,24 @@ def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> d
     with _store_errors(location.url):
         commits = committed_tasks(location)
         index = finalise(location, commits)
-    job_tasks = {task.task_id for task in spec.tasks}
+    task_ids = ledger.task_ids(job_id)
+    job_tasks = set(task_ids)
     summary: dict[str, Any] = {"step_seconds": step_totals(r for r in commits if r.task_id in job_tasks).to_json()}
     try:
-        swept = sweep_leftovers(location, [task.task_id for task in spec.tasks])
+        swept = sweep_leftovers(location, task_ids)
     except Exception as error:  # a failed clean-up must not fail a finished job
         summary["sweep_error"] = f"{type(error).__name__}: {error}"
         swept = []
-    tasks = ledger.tasks(job_id)
-    origin = {task.task_id: task.object.origin for task in spec.tasks}
+    counts = ledger.task_counts(job_id)
+    failed = [(TaskSpec.model_validate(t.spec), t.error) for t in ledger.each_task(job_id, (FAILED,))]
     summary.update(
         {
-            "tasks": len(tasks),
-            "done": sum(1 for t in tasks if t.state == DONE),
-            "failed": sum(1 for t in tasks if t.state == FAILED) + len(spec.line_errors),
+            "tasks": sum(counts.values()),
+            "done": counts.get(DONE, 0),
+            "failed": counts.get(FAILED, 0) + len(spec.line_errors),
             "samples": index.num_rows,
             "line_errors": spec.line_errors,
-            "failures": [f"{origin[t.task_id]}: {t.task_id}: {t.error}" for t in tasks if t.state == FAILED],
+            "failures": [f"{task.object.origin}: {task.task_id}: {error}" for task, error in failed],
             "swept": len(swept),
             "swept_examples": swept[:5],
         }
@@ -410,15 +413,15 @@ def _store_errors(url: str) -> Iterator[None]:
 def _record(
     ledger: Ledger,
     job_id: str,
-    task_id: str,
+    task: TaskSpec,
     attempt_id: str,
     ref: Any,
     state: JobProgress,
     location: Location,
-    task: TaskSpec,
 ) -> None:
     import ray
 
+    task_id = task.task_id
     try:
         outcome, placement = ray.get(ref)
     except ray.exceptions.TaskCancelledError:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from datagen.pipeline.objects.objects_file import read_objects_file
@@ -12,22 +13,29 @@ from schemas.config import GenerationConfig
 from schemas.jobs import JobSpec, ObjectRef, TaskSpec
 
 
-def plan_job(objects_file: str | Path, config: GenerationConfig, out: str, job_id: str | None = None) -> JobSpec:
+@dataclass(frozen=True)
+class JobPlan:
+    """A planned job: its spec and its tasks, which the ledger stores as one row each."""
+
+    spec: JobSpec
+    tasks: list[TaskSpec]
+
+
+def plan_job(objects_file: str | Path, config: GenerationConfig, out: str, job_id: str | None = None) -> JobPlan:
     """The job's tasks in file order, rotations ascending; bad lines become ``line_errors``."""
     listing = read_objects_file(objects_file)
-    tasks = [
-        TaskSpec(task_id=spec.task_id(rotation), object=object_ref(spec), rotation=rotation)
-        for spec in listing.objects
-        for rotation in range(config.rotations)
-    ]
-    return JobSpec(
+    tasks: list[TaskSpec] = []
+    for spec in listing.objects:
+        ref = object_ref(spec)  # one per object, shared by its rotations' tasks
+        tasks.extend(TaskSpec(task_id=spec.task_id(r), object=ref, rotation=r) for r in range(config.rotations))
+    job = JobSpec(
         job_id=job_id or new_job_id(config),
         objects_file=str(Path(objects_file).resolve()),
         out=out,
         config=config,
-        tasks=tasks,
         line_errors=[str(error) for error in listing.errors],
     )
+    return JobPlan(job, tasks)
 
 
 def new_job_id(config: GenerationConfig) -> str:

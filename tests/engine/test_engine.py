@@ -24,6 +24,7 @@ from support.engine import (
     datagen_processes,
     job_tasks,
     only_job,
+    planned_task_ids,
     shard_dirs,
     start_local_ray,
     stop_local_ray,
@@ -76,10 +77,6 @@ def settings_for(home: Path) -> RunSettings:
     return RunSettings(home=home, num_workers=RAY_CPUS, ray_address=None)
 
 
-def planned_task_ids(job) -> list[str]:
-    return [t["task_id"] for t in job.spec["tasks"]]
-
-
 @pytest.fixture(scope="module")
 def builtin_job(inputs: Path, tmp_path_factory):
     """2 built-ins x 2 rotations through the Python API on the module's 2-CPU Ray."""
@@ -100,7 +97,7 @@ def test_builtins_end_to_end(builtin_job) -> None:
     home, job = builtin_job
     assert job.state == DONE, job.summary
     assert Path(job.out) == home / "datasets" / job.job_id
-    task_ids = planned_task_ids(job)
+    task_ids = planned_task_ids(home, job.job_id)
     assert len(task_ids) == len(FAST_BUILTINS) * 2
     summary = check_complete_dataset(job.out, task_ids)
     assert job.summary is not None
@@ -153,7 +150,7 @@ def test_shared_meshes_end_to_end(inputs: Path, tmp_path: Path) -> None:
     objects = write_objects(tmp_path / "meshes.txt", [f"{SHARED_MESHES / line}" for line in SHARED_MESH_LINES])
     job = api.submit(objects, inputs / "one.toml", settings_for(tmp_path / "home"))
     assert job.state == DONE, job.summary
-    task_ids = planned_task_ids(job)
+    task_ids = planned_task_ids(tmp_path / "home", job.job_id)
     assert len(task_ids) == 3
     summary = check_complete_dataset(job.out, task_ids)
     assert job.summary is not None and job.summary["samples"] == summary.samples
@@ -170,9 +167,10 @@ def test_a_finished_job_removes_leftovers_of_interrupted_attempts(inputs: Path, 
     objects = write_objects(tmp_path / "one.txt", builtin_lines(("capsule",)))
     home = tmp_path / "home"
     job = api.enqueue(objects, inputs / "one.toml", RunSettings(home=home, out=str(out)))
-    (task_id,) = planned_task_ids(job)
+    (task_id,) = planned_task_ids(home, job.job_id)
     stale = [
         f"shards/{task_id}/a1-0badc0ffee00-00000000.zarr/zarr.json",
+        f"shards/{task_id}/a1-0badc0ffee00-00000001.zarr.zip.tmp-0123456789abcdef",
         f"shards/{task_id}/a1-0badc0ffee00-00000000.parquet",
         f"commits/{task_id}.json.tmp-0123456789abcdef",
         "index.parquet.tmp-0123456789abcdef",
@@ -193,10 +191,10 @@ def test_a_finished_job_removes_leftovers_of_interrupted_attempts(inputs: Path, 
     assert result.exit_code == 0, result.output
     assert all(not (out / relative).exists() for relative in stale)
     assert all((out / relative).exists() for relative in kept)
-    assert f"removed 4 leftover files of interrupted attempts (commits/{task_id}.json.tmp-" in result.stdout
+    assert f"removed 5 leftover files of interrupted attempts (commits/{task_id}.json.tmp-" in result.stdout
     assert shard_dirs(str(out))[task_id] == sorted(Path(p).name for p in _committed_files(str(out), task_id))
     done = only_job(home)
-    assert done is not None and done.summary is not None and done.summary["swept"] == 4
+    assert done is not None and done.summary is not None and done.summary["swept"] == 5
     check_complete_dataset(str(out), [task_id])
 
 
@@ -214,7 +212,7 @@ def _committed_files(url: str, task_id: str) -> list[str]:
 @pytest.mark.slow
 def test_one_and_two_worker_cpus_give_identical_samples(builtin_job, inputs: Path, tmp_path: Path) -> None:
     """The 2-CPU run is `builtin_job` (this module's Ray); the 1-CPU run a `datagen submit --workers 1`."""
-    _, job2 = builtin_job
+    home2, job2 = builtin_job
     home1 = tmp_path / "home1"
     out1 = tmp_path / "out1"
     args = ["submit", "--objects", str(inputs / "builtins.txt"), "--config", str(inputs / "fast.toml")]
@@ -224,7 +222,7 @@ def test_one_and_two_worker_cpus_give_identical_samples(builtin_job, inputs: Pat
         assert process.wait(timeout=240) == 0, process.output()
     job1 = only_job(home1)
     assert job1 is not None and job1.state == DONE
-    assert planned_task_ids(job1) == planned_task_ids(job2)
+    assert planned_task_ids(home1, job1.job_id) == planned_task_ids(home2, job2.job_id)
     assert validate(str(out1), full=True) == []
     compared = assert_same_samples(str(out1), job2.out)
     assert compared == summarize(job2.out).samples > 0

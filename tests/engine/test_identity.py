@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from support.engine import planned_tasks
 from typer.testing import CliRunner
 
 from datagen import api
@@ -67,7 +68,7 @@ def test_resume_refuses_a_dataset_made_with_other_builtin_weights(
     assert "restore the files it was made with, or write to a new --out" in line
     # nothing was added to the dataset, and the ledger says why the job stopped
     assert read_info(open_location(job.out)).config_hash == made.config_hash
-    assert read_commit(open_location(job.out), job.spec["tasks"][0]["task_id"]) is None
+    assert read_commit(open_location(job.out), planned_tasks(home, job.job_id)[0].task_id) is None
     stopped = api.status(job.job_id, RunSettings(home=home))[0]
     assert stopped.state == FAILED and "other contents" in stopped.summary["error"]
 
@@ -75,11 +76,12 @@ def test_resume_refuses_a_dataset_made_with_other_builtin_weights(
 def test_a_worker_with_other_weights_fails_its_task_instead_of_mixing(
     tmp_path: Path, poco_job, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    _, job, made = poco_job
+    home, job, made = poco_job
     spec = JobSpec.model_validate(job.spec)
+    (task,) = planned_tasks(home, job.job_id)
     monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", upgraded_weights(tmp_path))
-    outcome = execute_task(spec.tasks[0], spec.config, job.out, "a1-test", config_hash=made.config_hash)
+    outcome = execute_task(task, spec.config, job.out, "a1-test", config_hash=made.config_hash)
     assert not outcome.ok and "install the same datagen and weights on every node" in outcome.message
     (record,) = read_failures(open_location(job.out))
-    assert record.task_id == spec.tasks[0].task_id and record.origin.endswith("objects.txt:1")
-    assert read_commit(open_location(job.out), spec.tasks[0].task_id) is None
+    assert record.task_id == task.task_id and record.origin.endswith("objects.txt:1")
+    assert read_commit(open_location(job.out), task.task_id) is None

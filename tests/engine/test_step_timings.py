@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import pytest
+from support.engine import planned_tasks
 from typer.testing import CliRunner
 
 from datagen import api
@@ -17,6 +18,7 @@ from datagen.cli import jobs as jobs_cli
 from datagen.cli.main import app
 from datagen.engine import driver as driver_module
 from datagen.engine.driver import dataset_info
+from datagen.engine.job_plan import JobPlan
 from datagen.engine.serve import ledger_for
 from datagen.engine.worker import execute_task
 from datagen.inspection.stats import dataset_stats
@@ -32,8 +34,8 @@ TOLERANCE = 0.05
 
 
 @pytest.fixture(scope="module")
-def written(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, JobSpec, Path]:
-    """One job of two capsule tasks (refiner none), both executed in this process; (out, spec, home)."""
+def written(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, JobPlan, Path]:
+    """One job of two capsule tasks (refiner none), both executed in this process; (out, plan, home)."""
     folder = tmp_path_factory.mktemp("timed")
     objects = folder / "objects.txt"
     objects.write_text("builtin:capsule\n")
@@ -41,13 +43,13 @@ def written(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, JobSpec, Pat
     config.write_text('rotations = 2\nrefiner = "none"\n')
     home = folder / "home"
     job = api.enqueue(objects, config, RunSettings(home=home, out=str(folder / "out")))
-    spec = JobSpec.model_validate(job.spec)
+    plan = JobPlan(JobSpec.model_validate(job.spec), planned_tasks(home, job.job_id))
     location = open_location(job.out)
-    init_dataset(location, dataset_info(spec.config))
-    for task in spec.tasks:
-        outcome = execute_task(task, spec.config, job.out, "a1-test")
+    init_dataset(location, dataset_info(plan.spec.config))
+    for task in plan.tasks:
+        outcome = execute_task(task, plan.spec.config, job.out, "a1-test")
         assert outcome.ok, outcome.message
-    return job.out, spec, home
+    return job.out, plan, home
 
 
 def stats_output(url: str, *args: str, monkeypatch: pytest.MonkeyPatch) -> str:
@@ -57,10 +59,10 @@ def stats_output(url: str, *args: str, monkeypatch: pytest.MonkeyPatch) -> str:
     return result.stdout
 
 
-def test_a_fresh_commit_record_times_every_step_and_they_add_up(written: tuple[str, JobSpec, Path]) -> None:
-    out, spec, _ = written
+def test_a_fresh_commit_record_times_every_step_and_they_add_up(written: tuple[str, JobPlan, Path]) -> None:
+    out, plan, _ = written
     location = open_location(out)
-    for task in spec.tasks:
+    for task in plan.tasks:
         record = read_commit(location, task.task_id)
         assert record is not None and record.timings is not None
         timings = record.timings
@@ -86,20 +88,20 @@ def test_step_clock_accumulates_and_keeps_the_step_order() -> None:
     assert timings.total.wall >= sum(s.wall for s in timings.steps.values())
 
 
-def test_stats_report_the_time_per_step(written: tuple[str, JobSpec, Path], monkeypatch: pytest.MonkeyPatch) -> None:
-    out, spec, _ = written
+def test_stats_report_the_time_per_step(written: tuple[str, JobPlan, Path], monkeypatch: pytest.MonkeyPatch) -> None:
+    out, plan, _ = written
     stats = dataset_stats(open_dataset(out))
-    assert stats.step_seconds.tasks == len(spec.tasks) and stats.step_seconds.untimed == 0
+    assert stats.step_seconds.tasks == len(plan.tasks) and stats.step_seconds.untimed == 0
     assert list(stats.step_seconds.cpu) == list(TASK_STEPS)
     assert sum(stats.step_seconds.share(name) for name in TASK_STEPS) == pytest.approx(1.0)
 
     got = json.loads(stats_output(out, "--json", monkeypatch=monkeypatch))["step_seconds"]
-    assert got["timed_tasks"] == len(spec.tasks) and list(got["steps"]) == list(TASK_STEPS)
+    assert got["timed_tasks"] == len(plan.tasks) and list(got["steps"]) == list(TASK_STEPS)
     assert got["steps"]["write"]["cpu"] == pytest.approx(stats.step_seconds.cpu["write"])
     assert sum(step["share"] for step in got["steps"].values()) == pytest.approx(1.0)
 
     text = stats_output(out, monkeypatch=monkeypatch)
-    assert f"time per step, summed over {len(spec.tasks)} tasks:" in text
+    assert f"time per step, summed over {len(plan.tasks)} tasks:" in text
     section = text.split("time per step, summed over")[1].splitlines()[1:]
     rows = {line.split()[0]: line.split() for line in section if line.startswith("  ") and line.strip()}
     for name in TASK_STEPS:
@@ -108,7 +110,7 @@ def test_stats_report_the_time_per_step(written: tuple[str, JobSpec, Path], monk
 
 
 def test_a_dataset_written_before_timings_says_so_in_one_line(
-    written: tuple[str, JobSpec, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    written: tuple[str, JobPlan, Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     out, _, _ = written
     old = tmp_path / "old"
@@ -124,22 +126,22 @@ def test_a_dataset_written_before_timings_says_so_in_one_line(
 
 
 def test_the_job_summary_shows_cpu_seconds_per_step_and_their_shares(
-    written: tuple[str, JobSpec, Path], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+    written: tuple[str, JobPlan, Path], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    out, spec, home = written
+    out, plan, home = written
     ledger = ledger_for(RunSettings(home=home))
     try:
         (job,) = ledger.jobs()
-        summary = driver_module._finish(ledger, job.job_id, spec, open_location(out))
+        summary = driver_module._finish(ledger, job.job_id, plan.spec, open_location(out))
     finally:
         ledger.close()
     steps = summary["step_seconds"]
-    assert steps["timed_tasks"] == len(spec.tasks) and list(steps["steps"]) == list(TASK_STEPS)
+    assert steps["timed_tasks"] == len(plan.tasks) and list(steps["steps"]) == list(TASK_STEPS)
     json.dumps(summary)  # the ledger keeps it as JSON
     monkeypatch.setattr(common.console, "_width", 80)
     jobs_cli._report(Job(job.job_id, "done", {}, out, 0.0, 0.0, None, summary))
     printed = capsys.readouterr().out
-    assert f"time per step, summed over {len(spec.tasks)} tasks:" in printed
+    assert f"time per step, summed over {len(plan.tasks)} tasks:" in printed
     for name in TASK_STEPS:
         assert f"  {name} " in printed
     assert max(len(line) for line in printed.splitlines()) <= 80

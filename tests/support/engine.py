@@ -24,6 +24,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from jobs.ledger import Job, Ledger, Task
 from schemas.index import VOLATILE_COLUMNS
+from schemas.jobs import TaskSpec
 from schemas.shard import array_names
 from storage import committed_tasks, open_dataset, open_location, validate
 from storage.shards import ShardReader
@@ -104,6 +105,17 @@ def only_job(home: Path) -> Job | None:
 def job_tasks(home: Path, job_id: str) -> list[Task]:
     with open_ledger(home) as ledger:
         return ledger.tasks(job_id)
+
+
+def planned_task_ids(home: Path, job_id: str) -> list[str]:
+    """The job's task ids in planned order (its tasks are ledger rows, not part of its spec)."""
+    with open_ledger(home) as ledger:
+        return ledger.task_ids(job_id)
+
+
+def planned_tasks(home: Path, job_id: str) -> list[TaskSpec]:
+    """The job's task specs in planned order, as a driver reads them from the ledger."""
+    return [TaskSpec.model_validate(task.spec) for task in job_tasks(home, job_id)]
 
 
 def done_count(home: Path) -> int:

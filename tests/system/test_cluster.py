@@ -21,6 +21,7 @@ from support.engine import (
     check_complete_dataset,
     done_count,
     job_tasks,
+    planned_task_ids,
     ray_task_workers,
     stop_local_ray,
     wait_until,
@@ -97,7 +98,7 @@ def test_tasks_run_on_both_worker_nodes(reference: tuple[Path, Job, list[str]], 
 
     home, job, workers = reference
     assert job.state == DONE, job.summary
-    task_ids = [t["task_id"] for t in job.spec["tasks"]]
+    task_ids = planned_task_ids(home, job.job_id)
     assert len(task_ids) == TASKS
     summary = check_complete_dataset(job.out, task_ids)
     assert job.summary is not None and job.summary["samples"] == summary.samples
@@ -148,7 +149,7 @@ def test_worker_node_removed_mid_job(
     job: Job = outcome["job"]
     assert done_at_removal < TASKS, "the node was removed after the job's end"
     assert job.state == DONE, job.summary
-    summary = check_complete_dataset(job.out, [t["task_id"] for t in job.spec["tasks"]])
+    summary = check_complete_dataset(job.out, planned_task_ids(home, job.job_id))
     assert assert_same_samples(job.out, ref_job.out) == summary.samples
     tasks = job_tasks(home, job.job_id)
     # Ray re-ran the lost task inside the ledger's attempt: nothing failed, nothing claimed twice

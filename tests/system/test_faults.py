@@ -30,6 +30,7 @@ from support.engine import (
     kill_exact,
     only_job,
     open_ledger,
+    planned_task_ids,
     ray_task_workers,
     run_datagen,
     shard_dirs,
@@ -89,7 +90,7 @@ def reference(inputs: Path, local_ray, tmp_path_factory):
     home = tmp_path_factory.mktemp("reference")
     job = api.submit(inputs / "six.txt", inputs / "fast.toml", settings_for(home))
     assert job.state == DONE, job.summary
-    task_ids = [t["task_id"] for t in job.spec["tasks"]]
+    task_ids = planned_task_ids(home, job.job_id)
     assert len(task_ids) == TASKS
     summary = check_complete_dataset(job.out, task_ids)
     return job, summary

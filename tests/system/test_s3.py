@@ -35,6 +35,7 @@ from support.engine import (
     job_tasks,
     kill_exact,
     only_job,
+    planned_task_ids,
     ray_task_workers,
     run_datagen,
     shard_dirs,
@@ -131,7 +132,7 @@ def reference(aws_env: S3Server, local_ray: None, inputs: Path, tmp_path_factory
     settings = RunSettings(home=home, out=f"s3://{BUCKET}/reference", num_workers=RAY_CPUS, ray_address=None)
     job = api.submit(inputs / "objects.txt", inputs / "fast.toml", settings)
     assert job.state == DONE, job.summary
-    assert len(job.spec["tasks"]) == TASKS
+    assert len(planned_task_ids(home, job.job_id)) == TASKS
     return Reference(home, job, summarize(job.out))
 
 
@@ -146,7 +147,7 @@ def test_submit_to_s3_and_read_back(reference: Reference, aws_env: S3Server) -> 
     job = reference.job
     assert job.out == f"s3://{BUCKET}/reference"
     # validate(full=True) clean, exactly the planned samples of every task, no sample id twice
-    summary = check_complete_dataset(job.out, [t["task_id"] for t in job.spec["tasks"]])
+    summary = check_complete_dataset(job.out, planned_task_ids(reference.home, job.job_id))
     assert summary == reference.summary
     assert job.summary is not None and job.summary["samples"] == summary.samples
     # the objects are in the bucket (not in some local folder named like the URL)
