@@ -11,10 +11,12 @@ objects file that adds seeded variants to every object of another.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import re
 import shlex
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -24,7 +26,8 @@ from datagen.pipeline.objects.spec import (
     ObjectOptions,
     ObjectSpec,
     builtin_object_id,
-    file_object_id,
+    content_digest,
+    options_object_id,
 )
 from datagen.pipeline.objects.variants import draw_variant_seeds
 from datagen.shapes import builtins
@@ -34,6 +37,13 @@ LINE_SYNTAX = (
     "'PATH [name=..] [units=auto|m|mm] [up=z|y] [size=METRES] [variant=SEED] [category=..]', or 'builtin:NAME'"
 )
 _DIGITS = re.compile(r"[0-9]+")
+_SHELL_SPECIAL = re.compile(r"['\"\\#]")
+"""What makes `shlex.split` differ from splitting at blanks: quotes, escapes, comments."""
+_BLANKS = re.compile(r"[ \t\r\n]+")
+"""The characters `shlex` splits at in POSIX mode."""
+HASH_THREADS = 8
+"""Mesh files read and hashed at once while an objects file is resolved: hashing and reading let
+other threads run, so a listing of 50,000 meshes uses every core and overlaps the disk's waits."""
 
 
 @dataclass(frozen=True)
@@ -81,12 +91,12 @@ def read_objects_file(path: str | Path) -> ObjectsListing:
         ) from None
     except OSError as exc:
         raise ObjectsFileError(f"{path}: cannot read objects file ({exc.strerror})") from None
-    entries: list[ObjectEntry] = []
+    parsed: list[ObjectEntry | _MeshLine] = []
     for number, raw in enumerate(text.splitlines(), start=1):
         try:
-            tokens = shlex.split(raw, comments=True)
+            tokens = _tokens(raw)
         except ValueError as exc:
-            entries.append(
+            parsed.append(
                 ObjectLineError(
                     origin=str(path),
                     line=number,
@@ -96,13 +106,75 @@ def read_objects_file(path: str | Path) -> ObjectsListing:
             )
             continue
         if tokens:
-            entries.append(_parse_line(path, number, raw.strip(), tokens))
+            parsed.append(_parse_line(path, number, raw.strip(), tokens))
+    entries = _with_object_ids(parsed)
     if not entries:
         raise ObjectsFileError(f"{path}: lists no objects; add one line per mesh, {LINE_SYNTAX}")
     return ObjectsListing(path=path, entries=tuple(_flag_duplicates(entries)))
 
 
-def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectEntry:
+def _tokens(raw: str) -> list[str]:
+    """``shlex.split(raw, comments=True)``; a line without quotes, escapes or ``#`` (nearly every
+    line of a long listing) is split at blanks directly, with the same result, 20x faster."""
+    if _SHELL_SPECIAL.search(raw):
+        return shlex.split(raw, comments=True)
+    return [token for token in _BLANKS.split(raw) if token]
+
+
+@dataclass(frozen=True)
+class _MeshLine:
+    """A line naming a mesh file, parsed but not yet hashed (the files are hashed together,
+    `_with_object_ids`)."""
+
+    origin: str
+    number: int
+    raw: str
+    mesh_path: Path
+    options: dict[str, str]
+    object_options: ObjectOptions
+
+
+def _with_object_ids(parsed: list[ObjectEntry | _MeshLine]) -> list[ObjectEntry]:
+    """Every mesh line resolved to its object (or its error), in file order: the files are read and
+    hashed by `HASH_THREADS` threads, a block at a time."""
+    meshes = [line.mesh_path for line in parsed if isinstance(line, _MeshLine)]
+    with ThreadPoolExecutor(max_workers=min(HASH_THREADS, max(1, len(meshes)))) as pool:
+        digests = iter(pool.map(_digest_or_error, meshes))
+        return [_mesh_entry(line, next(digests)) if isinstance(line, _MeshLine) else line for line in parsed]
+
+
+def _digest_or_error(path: Path) -> hashlib._Hash | OSError:
+    try:
+        return content_digest(path)
+    except OSError as exc:
+        return exc
+
+
+def _mesh_entry(line: _MeshLine, digest: hashlib._Hash | OSError) -> ObjectEntry:
+    mesh_path = line.mesh_path
+
+    def fail(message: str) -> ObjectLineError:
+        return ObjectLineError(origin=line.origin, line=line.number, text=line.raw, message=message)
+
+    if isinstance(digest, FileNotFoundError):
+        return fail(f"mesh file not found: {mesh_path}; fix the path (relative paths start at the objects file)")
+    if isinstance(digest, IsADirectoryError):
+        return fail(f"{mesh_path} is a folder; name a mesh file (OBJ, PLY, STL, OFF, GLB...)")
+    if isinstance(digest, OSError):
+        return fail(f"cannot read {mesh_path} ({digest.strerror})")
+    return ObjectSpec(
+        source=str(mesh_path),
+        name=line.options.get("name") or default_name(mesh_path.stem, line.object_options),
+        options=line.object_options,
+        object_id=options_object_id(digest, line.object_options),
+        origin=f"{line.origin}:{line.number}",
+        line=line.number,
+        named="name" in line.options,
+        category=line.options.get("category"),
+    )
+
+
+def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectEntry | _MeshLine:
     origin = str(path)
 
     def fail(message: str) -> ObjectLineError:
@@ -131,25 +203,7 @@ def _parse_line(path: Path, number: int, raw: str, tokens: list[str]) -> ObjectE
     mesh_path = Path(target).expanduser()
     if not mesh_path.is_absolute():
         mesh_path = path.parent / mesh_path
-    mesh_path = mesh_path.resolve()
-    try:
-        data = mesh_path.read_bytes()
-    except FileNotFoundError:
-        return fail(f"mesh file not found: {mesh_path}; fix the path (relative paths start at the objects file)")
-    except IsADirectoryError:
-        return fail(f"{mesh_path} is a folder; name a mesh file (OBJ, PLY, STL, OFF, GLB...)")
-    except OSError as exc:
-        return fail(f"cannot read {mesh_path} ({exc.strerror})")
-    return ObjectSpec(
-        source=str(mesh_path),
-        name=options.get("name") or default_name(mesh_path.stem, object_options),
-        options=object_options,
-        object_id=file_object_id(data, object_options),
-        origin=f"{origin}:{number}",
-        line=number,
-        named="name" in options,
-        category=options.get("category"),
-    )
+    return _MeshLine(origin, number, raw, mesh_path.resolve(), options, object_options)
 
 
 def _object_options(options: dict[str, str]) -> ObjectOptions:

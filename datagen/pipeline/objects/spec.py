@@ -68,16 +68,28 @@ class ObjectSpec:
 
 
 def file_object_id(mesh_bytes: bytes, options: ObjectOptions) -> str:
-    digest = hashlib.sha256(mesh_bytes)
-    digest.update(b"\0" + options.canonical().encode())
-    return digest.hexdigest()
+    return options_object_id(hashlib.sha256(mesh_bytes), options)
+
+
+def content_digest(path: Path) -> hashlib._Hash:
+    """The sha256 of a file's bytes, read a block at a time (a large mesh is never held whole);
+    raises what opening or reading the file raises."""
+    with path.open("rb") as handle:
+        return hashlib.file_digest(handle, "sha256")
+
+
+def options_object_id(content: hashlib._Hash, options: ObjectOptions) -> str:
+    """The object id from the sha256 of the mesh's bytes (`content`, consumed) and the options:
+    the same as `file_object_id` of the same bytes."""
+    content.update(b"\0" + options.canonical().encode())
+    return content.hexdigest()
 
 
 def mesh_file_spec(path: Path, options: ObjectOptions) -> ObjectSpec:
     """The spec of a mesh file made in code (benchmarks, tests), named by its stem; an objects file
     adds its line, a ``name=`` and path rules (`datagen.pipeline.objects.objects_file`)."""
     return ObjectSpec(
-        source=str(path), name=path.stem, options=options, object_id=file_object_id(path.read_bytes(), options)
+        source=str(path), name=path.stem, options=options, object_id=options_object_id(content_digest(path), options)
     )
 
 
