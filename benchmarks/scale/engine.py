@@ -130,7 +130,18 @@ def engine_case(
     measure("status-job-pending", [*datagen, "status", job, "--home", str(home)])
     measure("cancel", [*datagen, "cancel", job, "--home", str(home)])
     drive = [sys.executable, str(DRIVE), "--home", str(home), "--job", job, "--workers", str(workers)]
-    run = measure("run", [*drive, "--report", str(base / "run.json")], deadline=deadline, report=base / "run.json")
+    cancel = [*datagen, "cancel", job, "--home", str(home)]
+
+    def stop_the_driver() -> None:  # as a person stops a job: the driver sees it at its next tick
+        subprocess.run(cancel, cwd=source, env=dict(env), capture_output=True, check=False)
+
+    run = measure(
+        "run",
+        [*drive, "--report", str(base / "run.json")],
+        deadline=deadline,
+        on_deadline=stop_the_driver,
+        report=base / "run.json",
+    )
     counts = task_counts(home, job)
     rows["run"] = Measurement(**{**run.to_json(), "extra": {**run.extra, "counts": counts}})
     if counts.get("done", 0) == size:
@@ -147,7 +158,8 @@ def engine_case(
 
 
 def figures(name: str, measured: Measurement) -> tuple[float, float, float]:
-    """(CPU s, wall s, peak MiB) of a row; for a driver run, the driver's own over the run."""
+    """(CPU s, wall s, peak MiB) of a row; for a driver run, the driver's own over the run (the
+    process's, Ray's start included, when it was killed before it could say)."""
     if name in ("run", "resume-done") and "run_cpu_s" in measured.extra:
         extra = measured.extra
         return extra["run_cpu_s"], extra["run_wall_s"], extra["peak_mb"]
@@ -195,16 +207,19 @@ def per_task_table(label: str, results: Mapping[int, Mapping[str, Measurement]])
     ]
     for n in sorted(results):
         run = results[n].get("run")
-        if run is None or "run_cpu_s" not in run.extra:
+        if run is None:
             continue
         extra = run.extra
         done = extra.get("counts", {}).get("done", 0)
+        cpu, wall, peak = figures("run", run)
         early, late = _curve_slices(extra.get("curve", []))
-        stopped = f" (stopped at {extra['run_wall_s']:,.0f} s)" if run.stopped else ""
+        stopped = f" (stopped at {wall:,.0f} s)" if run.stopped else ""
+        if "run_cpu_s" not in extra:
+            stopped = f" (killed at {wall:,.0f} s: the process's totals)"
+        before = f"{extra['rss_before_mb']:,.0f}" if "rss_before_mb" in extra else "-"
         lines.append(
-            f"| {_k(n)} | {done:,}{stopped} | {1000 * extra['run_cpu_s'] / max(done, 1):.2f} "
-            f"| {1000 * extra['run_wall_s'] / max(done, 1):.2f} | {early} | {late} "
-            f"| {extra['rss_before_mb']:,.0f} | {extra['peak_mb']:,.0f} | {extra.get('ticks', 0):,} |"
+            f"| {_k(n)} | {done:,}{stopped} | {1000 * cpu / max(done, 1):.2f} | {1000 * wall / max(done, 1):.2f} "
+            f"| {early} | {late} | {before} | {peak:,.0f} | {extra.get('ticks', '-')} |"
         )
     return [*lines, ""]
 

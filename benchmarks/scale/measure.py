@@ -21,7 +21,7 @@ import signal
 import subprocess
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -62,12 +62,15 @@ def run_measured(
     env: Mapping[str, str],
     stdout: Path,
     deadline: float | None = None,
+    on_deadline: Callable[[], None] | None = None,
     report: Path | None = None,
 ) -> Measurement:
     """Run ``args`` with stdout (and stderr) into the file ``stdout``; its measurement.
 
-    ``deadline`` (seconds) stops it with SIGINT, then SIGKILL `GRACE_SECONDS` later. ``report`` is a
-    JSON file the command may write about itself (its own peak, its driver's CPU): read into ``extra``.
+    At ``deadline`` (seconds) ``on_deadline`` is called to ask the command to stop the way it stops
+    on its own (a driver: its job is cancelled in the ledger); `GRACE_SECONDS` later it gets SIGINT,
+    and SIGKILL after as long again. ``report`` is a JSON file the command may write about itself
+    (its own peak, its driver's CPU): read into ``extra``.
     """
     if report is not None and report.exists():
         report.unlink()
@@ -78,9 +81,13 @@ def run_measured(
 
     def stop() -> None:
         stopped.set()
+        if on_deadline is not None:
+            on_deadline()
+            if _exited(process.pid, GRACE_SECONDS):
+                return
         _signal(process.pid, signal.SIGINT)
-        time.sleep(GRACE_SECONDS)
-        _signal(process.pid, signal.SIGKILL)
+        if not _exited(process.pid, GRACE_SECONDS):
+            _signal(process.pid, signal.SIGKILL)
 
     timer = threading.Timer(deadline, stop) if deadline else None
     if timer is not None:
@@ -104,6 +111,20 @@ def run_measured(
         stopped=stopped.is_set(),
         extra=extra,
     )
+
+
+def _exited(pid: int, seconds: float) -> bool:
+    """Whether the child ended (it is a zombie until reaped) within ``seconds``."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except (OSError, IndexError):
+            return True
+        if state in ("Z", "X"):
+            return True
+        time.sleep(0.2)
+    return False
 
 
 def _signal(pid: int, sig: int) -> None:

@@ -52,13 +52,30 @@ def test_a_child_is_measured_by_the_kernel(measure: ModuleType, tmp_path: Path) 
     assert measure.Measurement.from_json(measured.to_json()) == measured
 
 
-def test_a_deadline_stops_the_child_with_sigint(measure: ModuleType, tmp_path: Path, monkeypatch) -> None:
+def test_a_deadline_stops_the_child_with_sigint(measure: ModuleType, tmp_path: Path) -> None:
     code = "import time\ntry:\n    time.sleep(60)\nexcept KeyboardInterrupt:\n    print('stopped')\n"
     measured = measure.run_measured(
         [sys.executable, "-c", code], cwd=tmp_path, env={}, stdout=tmp_path / "out.log", deadline=0.5
     )
     assert measured.stopped and measured.rc == 0 and measured.wall < 30
     assert (tmp_path / "out.log").read_text() == "stopped\n"
+
+
+def test_a_deadline_first_asks_the_child_to_stop_its_own_way(measure: ModuleType, tmp_path: Path) -> None:
+    flag = tmp_path / "cancelled"
+    code = (
+        f"import pathlib, time\nwhile not pathlib.Path({str(flag)!r}).exists():\n    time.sleep(0.05)\nprint('done')\n"
+    )
+    measured = measure.run_measured(
+        [sys.executable, "-c", code],
+        cwd=tmp_path,
+        env={},
+        stdout=tmp_path / "out.log",
+        deadline=0.5,
+        on_deadline=flag.touch,
+    )
+    assert measured.stopped and measured.rc == 0 and measured.wall < 30
+    assert (tmp_path / "out.log").read_text() == "done\n"
 
 
 def test_growth_is_ratios_and_a_log_log_slope(measure: ModuleType) -> None:
