@@ -16,7 +16,9 @@ import math
 import os
 import re
 import shlex
-from concurrent.futures import ThreadPoolExecutor
+from collections import deque
+from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -136,11 +138,23 @@ class _MeshLine:
 
 def _with_object_ids(parsed: list[ObjectEntry | _MeshLine]) -> list[ObjectEntry]:
     """Every mesh line resolved to its object (or its error), in file order: the files are read and
-    hashed by `HASH_THREADS` threads, a block at a time."""
+    hashed by `HASH_THREADS` threads, a block at a time, a few files ahead of the line resolved."""
     meshes = [line.mesh_path for line in parsed if isinstance(line, _MeshLine)]
     with ThreadPoolExecutor(max_workers=min(HASH_THREADS, max(1, len(meshes)))) as pool:
-        digests = iter(pool.map(_digest_or_error, meshes))
+        digests = _ahead(pool, meshes, 4 * HASH_THREADS)
         return [_mesh_entry(line, next(digests)) if isinstance(line, _MeshLine) else line for line in parsed]
+
+
+def _ahead(pool: ThreadPoolExecutor, paths: list[Path], window: int) -> Iterator[hashlib._Hash | OSError]:
+    """`_digest_or_error` of each path in order, at most ``window`` files ahead of the one asked for
+    (a listing of 50,000 meshes holds a few dozen pending digests, not 50,000)."""
+    pending: deque[Future[hashlib._Hash | OSError]] = deque()
+    for path in paths:
+        pending.append(pool.submit(_digest_or_error, path))
+        if len(pending) >= window:
+            yield pending.popleft().result()
+    while pending:
+        yield pending.popleft().result()
 
 
 def _digest_or_error(path: Path) -> hashlib._Hash | OSError:
