@@ -34,10 +34,9 @@ def enqueue(
     plan = plan_job(objects, resolved, out="")
     out = settings.out or default_out(settings, plan.spec.job_id)
     spec = plan.spec.model_copy(update={"out": out})
-    tasks = ((t.task_id, t.model_dump(mode="json")) for t in plan.tasks)
     with_ledger = ledger_for(settings)
     try:
-        return with_ledger.create_job(spec.job_id, spec.model_dump(mode="json"), out, tasks)
+        return with_ledger.create_job(spec.job_id, spec.model_dump(mode="json"), out, plan.tasks.rows())
     finally:
         with_ledger.close()
 

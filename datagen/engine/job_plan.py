@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import hashlib
 import time
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, overload
 
 from datagen.pipeline.objects.objects_file import read_objects_file
 from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec
@@ -13,21 +15,56 @@ from schemas.config import GenerationConfig
 from schemas.jobs import JobSpec, ObjectRef, TaskSpec
 
 
+class PlannedTasks(Sequence[TaskSpec]):
+    """A job's tasks in order (objects in file order, rotations ascending), each made when asked for:
+    a plan of 400,000 tasks holds its 50,000 objects, not 400,000 specs."""
+
+    def __init__(self, objects: Sequence[ObjectSpec], rotations: int) -> None:
+        self._objects = list(objects)
+        self._refs = [object_ref(spec) for spec in objects]
+        self._rotations = rotations
+
+    def __len__(self) -> int:
+        return len(self._refs) * self._rotations
+
+    @overload
+    def __getitem__(self, index: int) -> TaskSpec: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[TaskSpec]: ...
+
+    def __getitem__(self, index: int | slice) -> TaskSpec | list[TaskSpec]:
+        if isinstance(index, slice):
+            return [self[i] for i in range(*index.indices(len(self)))]
+        if not -len(self) <= index < len(self):
+            raise IndexError(index)
+        number, rotation = divmod(index % len(self), self._rotations)
+        return TaskSpec(task_id=self._task_id(number, rotation), object=self._refs[number], rotation=rotation)
+
+    def rows(self) -> Iterator[tuple[str, dict[str, Any]]]:
+        """(task id, the spec as JSON data) of every task in order, what the ledger stores, without a
+        `TaskSpec` each: the same data as ``TaskSpec.model_dump(mode="json")``."""
+        for number, ref in enumerate(self._refs):
+            data = ref.model_dump(mode="json")
+            for rotation in range(self._rotations):
+                task_id = self._task_id(number, rotation)
+                yield task_id, {"task_id": task_id, "object": data, "rotation": rotation}
+
+    def _task_id(self, number: int, rotation: int) -> str:
+        return self._objects[number].task_id(rotation)
+
+
 @dataclass(frozen=True)
 class JobPlan:
     """A planned job: its spec and its tasks, which the ledger stores as one row each."""
 
     spec: JobSpec
-    tasks: list[TaskSpec]
+    tasks: PlannedTasks
 
 
 def plan_job(objects_file: str | Path, config: GenerationConfig, out: str, job_id: str | None = None) -> JobPlan:
     """The job's tasks in file order, rotations ascending; bad lines become ``line_errors``."""
     listing = read_objects_file(objects_file)
-    tasks: list[TaskSpec] = []
-    for spec in listing.objects:
-        ref = object_ref(spec)  # one per object, shared by its rotations' tasks
-        tasks.extend(TaskSpec(task_id=spec.task_id(r), object=ref, rotation=r) for r in range(config.rotations))
     job = JobSpec(
         job_id=job_id or new_job_id(config),
         objects_file=str(Path(objects_file).resolve()),
@@ -35,7 +72,7 @@ def plan_job(objects_file: str | Path, config: GenerationConfig, out: str, job_i
         config=config,
         line_errors=[str(error) for error in listing.errors],
     )
-    return JobPlan(job, tasks)
+    return JobPlan(job, PlannedTasks(listing.objects, config.rotations))
 
 
 def new_job_id(config: GenerationConfig) -> str:

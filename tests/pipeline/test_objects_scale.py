@@ -96,3 +96,11 @@ def test_plan_of_many_lines_keeps_file_order_and_rotations(listing: Path) -> Non
     assert [t.object.object_id for t in plan.tasks[:9]] == [objects[0].object_id] * 8 + [objects[1].object_id]
     assert plan.spec.line_errors == [str(e) for e in read_objects_file(listing).errors]
     assert "tasks" not in plan.spec.model_dump()
+    assert plan.tasks[-1] == plan.tasks[len(plan.tasks) - 1] and plan.tasks[2:4] == list(plan.tasks)[2:4]
+    with pytest.raises(IndexError):
+        plan.tasks[len(plan.tasks)]
+
+
+def test_the_ledger_rows_of_a_plan_are_its_task_specs_as_json(listing: Path) -> None:
+    plan = plan_job(listing, GenerationConfig(refiner="none", rotations=3), out="/out", job_id="j")
+    assert list(plan.tasks.rows()) == [(t.task_id, t.model_dump(mode="json")) for t in plan.tasks]
