@@ -71,6 +71,7 @@ INDEX_SCHEMAS: dict[int, pa.Schema] = {
     2: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS]),
     3: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS, *NEXT_VIEW_FIELDS]),
     4: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS, *NEXT_VIEW_FIELDS]),
+    5: pa.schema([*INDEX_SCHEMA_V1, *AMBIGUITY_FIELDS, *NEXT_VIEW_FIELDS]),
 }
 INDEX_SCHEMA = INDEX_SCHEMAS[SCHEMA_VERSION]
 """The index as this version writes it."""
@@ -149,6 +150,9 @@ class CommitRecord(BaseModel):
     timings: TaskTimings | None = None
     """Per-step time of the attempt that committed; None in datasets written before it was kept (and
     in relabelled ones, whose tasks are not computed again)."""
+    stored_bytes: int | None = None
+    """Bytes of the shard and index fragment as written (a one-file shard's layout, version 5 on); None
+    where a listing must tell (older records, the folder layout)."""
 
 
 class FailureRecord(BaseModel):

@@ -1,4 +1,5 @@
-"""The shard layout: one Zarr v3 group per task attempt, holding every sample of the task.
+"""The shard layout: one Zarr v3 group per task attempt, holding every sample of the task (from
+version 5 in one file: an uncompressed ZIP of the group's members, `SINGLE_FILE_SINCE`).
 
 Every point is a voxel centre, so points are stored as their integer keys (int16 triples) and read
 back as float32 centres ``(key + 0.5 - grid_offset) * voxel_size``. Variable-length per-sample sets
@@ -87,6 +88,9 @@ NEXT_VIEW_ARRAYS = (VIEW_GAINS, COVERAGE_GAINS, GAIN_TOTALS, GRID_FRAME, GRID_HI
 """Version 3: the next-best-view labels and the occupancy grid's per-view ray cells."""
 GAIN_DTYPE = np.dtype(np.uint32)
 ORDERED_POINTS_SINCE = 4
+SINGLE_FILE_SINCE = 5
+"""The first layout version keeping a task's group in one ZIP file (``<attempt>.zarr.zip``) instead of a
+folder of about 40 files (``<attempt>.zarr``); the arrays and their encoding are version 4's."""
 """The first layout version whose ``points_keys`` hold each cloud in `point_order`."""
 POINT_ORDER_PURPOSE = 4
 """The purpose number of the point-order stream among a task's random streams (docs/pipeline.md
@@ -117,6 +121,16 @@ def point_order(seed: int, object_id: str, rotation: int, case: int, count: int)
 def ordered_points(schema_version: int, name: str) -> bool:
     """True for the key set ``name`` (``points``, ``observed``) of a layout storing it in `point_order`."""
     return name == "points" and schema_version >= ORDERED_POINTS_SINCE
+
+
+def single_file(schema_version: int) -> bool:
+    """True for a layout keeping each task's group in one ZIP file."""
+    return schema_version >= SINGLE_FILE_SINCE
+
+
+def shard_suffix(schema_version: int) -> str:
+    """How a task attempt's shard path ends in layout ``schema_version``."""
+    return ".zarr.zip" if single_file(schema_version) else ".zarr"
 
 
 def array_names(schema_version: int = SCHEMA_VERSION) -> list[str]:

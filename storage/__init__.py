@@ -7,9 +7,10 @@ Depends on numpy, zarr, pyarrow, fsspec and `schemas` only: a training package n
 from storage.covers import covers_universe, nearest_cover, undominated, universe_rows
 from storage.dataset_info import init_dataset, read_info
 from storage.export import export_air
+from storage.index import load_index
 from storage.location import DamagedFile, Location, StorageError, StoreUnreachable, is_s3, open_location
 from storage.problems import Mend, Problem
-from storage.reader import Dataset, LabelAmbiguity, NextView, finalise, load_index, open_dataset
+from storage.reader import Dataset, LabelAmbiguity, NextView, finalise, open_dataset
 from storage.shards import ShardReader
 from storage.store_errors import check_store, is_store_failure, is_transient, storage_failure, store_errors
 from storage.validate import SAMPLED_ROWS_PER_SHARD, Validation, validate, validate_dataset

@@ -23,9 +23,8 @@ import numpy as np
 import numpy.typing as npt
 import zarr.codecs
 
-from storage.location import Location
-
 if TYPE_CHECKING:
+    from storage.group_files import GroupFiles
     from storage.shards import ShardReader
 
 COMPRESSORS = (
@@ -48,23 +47,23 @@ def whole_array(reader: ShardReader, name: str) -> npt.NDArray[Any]:
     (a missing or corrupt file), is read again through `ShardReader.array`, which raises the reader's
     own `StorageError` for damage. The same values as zarr's read, for a third of its CPU time (zarr's
     per-chunk machinery costs more than the decompression itself on a whole-shard read)."""
-    found = decoded_whole(reader.location, f"{reader.relative}/{name}")
+    found = decoded_whole(reader.files, name)
     return found if found is not None else reader.array(name)
 
 
-def decoded_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
-    """The whole array at ``relative`` decoded here (`whole_array`'s fast path), or None when its
-    layout is not the one decoded here or any file fails: the caller then reads it through zarr."""
+def decoded_whole(files: GroupFiles, name: str) -> npt.NDArray[Any] | None:
+    """The whole array ``name`` of a group decoded here (`whole_array`'s fast path), or None when its
+    layout is not the one decoded here or any member fails: the caller then reads it through zarr."""
     try:
-        return _decode_whole(location, relative)
+        return _decode_whole(files, name)
     except Exception:
         return None
 
 
-def _regular_array(location: Location, relative: str) -> dict[str, Any] | None:
-    """The zarr.json of the array at ``relative`` when it is a plain zarr v3 array on a regular grid
-    with the default "/" chunk keys (the writer's every array), else None: another layout for zarr."""
-    meta: dict[str, Any] = json.loads(location.read_bytes(f"{relative}/zarr.json"))
+def _regular_array(files: GroupFiles, name: str) -> dict[str, Any] | None:
+    """The zarr.json of array ``name`` when it is a plain zarr v3 array on a regular grid with the
+    default "/" chunk keys (the writer's every array), else None: another layout for zarr."""
+    meta: dict[str, Any] = json.loads(files.read(f"{name}/zarr.json"))
     if (
         meta.get("zarr_format") != 3
         or meta.get("node_type") != "array"
@@ -76,9 +75,9 @@ def _regular_array(location: Location, relative: str) -> dict[str, Any] | None:
     return meta
 
 
-def _decode_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
-    """The whole array at ``relative``, or None when its layout is not the one decoded here."""
-    meta = _regular_array(location, relative)
+def _decode_whole(files: GroupFiles, name: str) -> npt.NDArray[Any] | None:
+    """The whole array ``name``, or None when its layout is not the one decoded here."""
+    meta = _regular_array(files, name)
     if meta is None:
         return None
     grid = meta["chunk_grid"]
@@ -89,7 +88,7 @@ def _decode_whole(location: Location, relative: str) -> npt.NDArray[Any] | None:
         return None  # more than one chunk or shard file
     if math.prod(shape) == 0:
         return np.zeros(shape, dtype=dtype)
-    data = location.read_bytes(f"{relative}/c/{'/'.join('0' * len(shape))}")
+    data = files.read(f"{name}/c/{'/'.join('0' * len(shape))}")
     codecs = meta["codecs"]
     whole = tuple(slice(0, size) for size in shape)
     if _plain(codecs):
@@ -140,7 +139,7 @@ class RowTaker:
     def __init__(self, reader: ShardReader, name: str) -> None:
         self._reader, self._name = reader, name
         try:
-            self._chunked = _open_row_chunks(reader.location, f"{reader.relative}/{name}")
+            self._chunked = _open_row_chunks(reader.files, name)
         except Exception:
             self._chunked = None
         self._whole: npt.NDArray[Any] | None = None
@@ -230,15 +229,15 @@ def _row_shard_layout(meta: dict[str, Any]) -> tuple[tuple[int, ...], int, tuple
     return shape, outer[0], inner
 
 
-def _open_row_chunks(location: Location, relative: str) -> _RowChunks | None:
-    """The row-chunked shard file of the array at ``relative``, or None for another layout."""
-    meta = _regular_array(location, relative)
+def _open_row_chunks(files: GroupFiles, name: str) -> _RowChunks | None:
+    """The row-chunked shard file of array ``name``, or None for another layout."""
+    meta = _regular_array(files, name)
     layout = _row_shard_layout(meta) if meta is not None else None
     if meta is None or layout is None:
         return None
     shape, shard_rows, inner = layout
     dtype = np.dtype(meta["data_type"]).newbyteorder("<")
-    data = location.read_bytes(f"{relative}/c/0/0")
+    data = files.read(f"{name}/c/0/0")
     return _RowChunks(data, shape, dtype, inner, shard_rows // inner[0])
 
 

@@ -9,8 +9,12 @@ mends it (`storage.problems`).
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
+from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from schemas.index import INDEX_SCHEMAS, CommitRecord, index_schema_version
 from storage.index import (
@@ -19,9 +23,11 @@ from storage.index import (
     coverage_disagreements,
     read_coverage,
     row_count_disagreements,
+    task_row_counts,
     unindexed_tasks,
 )
 from storage.location import RERUN_FIX, DamagedFile, Location, is_temporary
+from storage.manifest import MANIFEST_FILE, Manifest, read_manifest, read_tasks, record_of
 from storage.parquet import read_index_table, read_parquet
 from storage.problems import Mend, Problem
 from storage.writer import commit_path, failure_path, read_failure_records
@@ -61,10 +67,16 @@ def check_fragments(
 
 
 def check_finalised_index(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[Problem], pa.Table | None]:
-    """Problems where ``index.json``/``index.parquet`` disagree with the commit records, and the
-    finalised table when it covers exactly the commits (the index readers would use). A task the index
-    names whose commit record is lost is mended by re-running it; everything else here by finalising
-    the index again."""
+    """Problems where the finalised index (the manifest, or an earlier datagen's ``index.json`` and
+    ``index.parquet``) disagrees with the commit records, and its samples when it covers exactly the
+    commits (the index readers would use). A task the index names whose commit record is lost is mended
+    by re-running it; everything else here by finalising the index again."""
+    try:
+        manifest = read_manifest(location)
+    except DamagedFile as exc:
+        return [Problem("index", exc.relative, f"{exc.problem}; {REFINALISE_FIX}", Mend.INDEX)], None
+    if manifest is not None:
+        return check_manifest(location, manifest, commits)
     try:
         coverage = read_coverage(location)
     except DamagedFile as exc:
@@ -103,6 +115,119 @@ def check_finalised_index(location: Location, commits: Sequence[CommitRecord]) -
     ]
     covers_commits = coverage == {r.task_id: r.attempt_id for r in commits}
     return found, table if covers_commits else None
+
+
+def check_manifest(
+    location: Location, manifest: Manifest, commits: Sequence[CommitRecord]
+) -> tuple[list[Problem], pa.Table | None]:
+    """`check_finalised_index` of a manifest: every task it names against its commit record (there,
+    the same attempt, shard and sample count), every committed task in it, and its samples tables row
+    for row (each task's rows together, in shard row order, in the shard its task names)."""
+    try:
+        tasks = read_tasks(location, manifest)
+    except DamagedFile as exc:
+        return [Problem("index", exc.relative, f"{exc.problem}; {REFINALISE_FIX}", Mend.INDEX)], None
+    if manifest.packed:
+        committed = {row["task_id"]: record_of(row) for row in tasks.to_pylist()}
+    else:
+        committed = {r.task_id: r for r in commits}
+    found: list[Problem] = []
+    named = tasks.to_pylist()
+    for row in named:
+        task = row["task_id"]
+        record = committed.get(task)
+        if record is None:
+            message = (
+                f"task {task} is in the finalised index but has no commit record ({commit_path(task)}); {RERUN_FIX}"
+            )
+            found.append(Problem("index", MANIFEST_FILE, message, Mend.TASK, task))
+            continue
+        ours = (row["attempt_id"], row["shard"], row["num_samples"])
+        theirs = (record.attempt_id, record.shard, record.num_samples)
+        if ours != theirs:
+            message = (
+                f"task {task} is in the finalised index as attempt {ours[0]} ({ours[2]} samples in {ours[1]}), "
+                f"committed as {theirs[0]} ({theirs[2]} samples in {theirs[1]}); {REFINALISE_FIX}"
+            )
+            found.append(Problem("index", MANIFEST_FILE, message, Mend.INDEX, task))
+    indexed = {row["task_id"] for row in named}
+    found += [
+        Problem(
+            "index",
+            commit_path(task),
+            f"task {task} is committed but not in the finalised index ({MANIFEST_FILE}); {REFINALISE_FIX}",
+            Mend.INDEX,
+            task,
+        )
+        for task in sorted(set(committed) - indexed)
+    ]
+    covers_commits = not found and indexed == set(committed)
+    rows_found, table = _check_samples_tables(location, manifest, named)
+    return found + rows_found, table if covers_commits else None
+
+
+def _check_samples_tables(
+    location: Location, manifest: Manifest, tasks: list[dict[str, Any]]
+) -> tuple[list[Problem], pa.Table | None]:
+    """Each segment's samples against its tasks: the same tasks, each's rows together and in shard row
+    order, in the task's shard; the samples when all of them read."""
+    found: list[Problem] = []
+    tables = []
+    start = 0
+    unreadable = False
+    for segment in manifest.segments:
+        own = tasks[start : start + segment.num_tasks]
+        start += segment.num_tasks
+        try:
+            table = read_index_table(location, segment.samples)
+        except DamagedFile as exc:
+            found.append(Problem("index", segment.samples, f"{exc.problem}; {REFINALISE_FIX}", Mend.INDEX))
+            unreadable = True
+            continue
+        problem = _misplaced_row(table, own)
+        if problem is not None:
+            task, message = problem
+            found.append(Problem("index", segment.samples, f"{message}; {REFINALISE_FIX}", Mend.INDEX, task))
+        if table.num_rows != sum(int(t["num_samples"]) for t in own):
+            unreadable = True
+            continue
+        tables.append(table)
+    if unreadable or not tables:
+        return found, None
+    return found, pa.concat_tables(tables)  # a row in the wrong place is checked row by row as well
+
+
+def _misplaced_row(table: pa.Table, tasks: list[dict[str, Any]]) -> tuple[str, str] | None:
+    """(task, what) of the first way ``table`` differs from ``tasks``' rows (each task's samples in
+    order, rows 0 to its count, in its shard); None when it holds exactly those."""
+    counts = np.asarray([int(t["num_samples"]) for t in tasks], dtype=np.int64)
+    if table.num_rows != int(counts.sum()):
+        rows = task_row_counts(table)
+        for t in tasks:
+            held = rows.get(t["task_id"], 0)
+            if held != t["num_samples"]:
+                return t["task_id"], f"task {t['task_id']} has {held} rows, its commit record says {t['num_samples']}"
+        return tasks[0]["task_id"] if tasks else "", f"{table.num_rows} rows, its tasks hold {int(counts.sum())}"
+    owner = np.repeat(np.arange(len(tasks), dtype=np.int64), counts)
+    wanted_row = np.arange(owner.size, dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
+    wrong = owner != _positions(table.column("task_id"), [t["task_id"] for t in tasks])
+    wrong |= owner != _positions(table.column("shard"), [t["shard"] for t in tasks])
+    wrong |= table.column("row").to_numpy().astype(np.int64) != wanted_row
+    if not wrong.any():
+        return None
+    at = int(np.flatnonzero(wrong)[0])
+    task = tasks[int(owner[at])]["task_id"]
+    got = (table.column("task_id")[at].as_py(), table.column("row")[at].as_py(), table.column("shard")[at].as_py())
+    return task, f"row {at} is {got[0]} row {got[1]} in {got[2]}, expected {task} row {int(wanted_row[at])}"
+
+
+def _positions(column: pa.ChunkedArray, names: list[str]) -> npt.NDArray[np.int64]:
+    """Per row, the position of its value among ``names`` (-1 for a value not there)."""
+    encoded = pc.dictionary_encode(column).combine_chunks()
+    place = {name: k for k, name in enumerate(names)}
+    lookup = np.asarray([place.get(v, -1) for v in encoded.dictionary.to_pylist()], dtype=np.int64)
+    codes = encoded.indices.to_numpy(zero_copy_only=False).astype(np.int64)
+    return lookup[codes] if lookup.size else np.full(codes.size, -1, dtype=np.int64)
 
 
 def check_failures(location: Location, commits: Sequence[CommitRecord]) -> tuple[list[Problem], list[str]]:

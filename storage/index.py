@@ -1,7 +1,9 @@
-"""The merged index: ``index.parquet`` (one row per sample) and ``index.json`` (the commits it covers).
+"""Opening a dataset's index: the manifest (`storage.manifest`, written by `finalise`), or in a dataset
+finalised by earlier code the merged index: ``index.parquet`` (one row per sample) and ``index.json``
+(the commits it covers).
 
-`finalise` writes ``index.parquet``, then ``index.json`` = {task id: attempt id} of every commit it
-merged. A reader uses ``index.parquet`` only when ``index.json`` names exactly the current commit
+Earlier code's `finalise` wrote ``index.parquet``, then ``index.json`` = {task id: attempt id} of every
+commit it merged. A reader uses ``index.parquet`` only when ``index.json`` names exactly the current commit
 records; when tasks were committed since (a resumed job still running), it merges their fragments
 instead, as it does for a dataset never finalised.
 
@@ -20,10 +22,22 @@ from collections.abc import Iterator, Sequence
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.index import INDEX_SCHEMA, CommitRecord
+from schemas.index import INDEX_SCHEMA, INDEX_SCHEMAS, CommitRecord
 from storage.location import Location, damaged, first_line
-from storage.parquet import parquet_bytes, read_index_table
-from storage.writer import commit_path, committed_tasks
+from storage.manifest import (
+    MANIFEST_FILE,
+    TASKS_SCHEMA,
+    Finalised,
+    check_samples_tables,
+    listed_commits,
+    read_manifest,
+    read_tasks,
+    task_row,
+)
+from storage.manifest import finalise as finalise_manifest
+from storage.parquet import read_index_table
+from storage.sample_index import ManifestColumns, SampleIndex, from_table, from_tasks
+from storage.writer import commit_path, committed_tasks, read_commit
 
 INDEX_FILE = "index.parquet"
 INDEX_COVERAGE_FILE = "index.json"
@@ -34,20 +48,61 @@ Disagreement = tuple[str, str]
 """(task id, what disagrees) for one task."""
 
 
-def finalise(location: Location, commits: Sequence[CommitRecord] | None = None) -> pa.Table:
-    """Merge the committed fragments into ``index.parquet`` (with the commits it covers); ``commits``
-    are the dataset's commit records when the caller read them already."""
-    commits = committed_tasks(location) if commits is None else commits
-    table = merge_fragments(location, commits)
-    location.write_atomic(INDEX_FILE, parquet_bytes(table))
-    coverage = {r.task_id: r.attempt_id for r in commits}
-    location.write_atomic(INDEX_COVERAGE_FILE, json.dumps(coverage, sort_keys=True).encode())
-    return table
+def finalise(location: Location, commits: Sequence[CommitRecord] | None = None) -> Finalised:
+    """Bring the dataset's manifest up to date with its commit records (`storage.manifest.finalise`);
+    ``commits`` are every commit record when the caller read them already."""
+    return finalise_manifest(location, read_schema_version(location), commits)
+
+
+def read_schema_version(location: Location) -> int:
+    from storage.dataset_info import read_info  # dataset_info reads the records' folders from writer
+
+    return read_info(location).schema_version
+
+
+def open_index(location: Location) -> SampleIndex:
+    """Where each committed sample lives, with its index columns read on demand: from the manifest
+    (plus the tasks committed since it was written) when there is one, else from the legacy merged
+    index or the fragments (`load_index`). `DamagedFile` for a manifest naming a task without a commit
+    record, or a damaged file it needs."""
+    manifest = read_manifest(location)
+    if manifest is None:
+        return from_table(load_index(location))
+    tasks = read_tasks(location, manifest)
+    check_samples_tables(location, manifest)
+    schema = INDEX_SCHEMAS[manifest.schema_version]
+    tail = None
+    if not manifest.packed:
+        listed = listed_commits(location)
+        named = tasks.column("task_id").to_pylist()
+        lost = sorted(set(named) - set(listed))
+        _refuse(
+            location,
+            MANIFEST_FILE,
+            [(task, f"is in the finalised index but has no commit record ({commit_path(task)})") for task in lost],
+        )
+        new = sorted(set(listed) - set(named))
+        if new:
+            records = [_committed_record(location, task) for task in new]
+            rows = [task_row(r) for r in records]
+            tasks = pa.concat_tables([tasks, pa.Table.from_pylist(rows, schema=TASKS_SCHEMA)])
+            tail = merge_fragments(location, records).cast(schema)
+    return from_tasks(location, tasks, ManifestColumns(location, manifest, tail), manifest.packed)
+
+
+def _committed_record(location: Location, task_id: str) -> CommitRecord:
+    """A task's commit record, listed a moment ago; `DamagedFile` when it has gone since."""
+    record = read_commit(location, task_id)
+    if record is None:
+        raise damaged(location.url, commit_path(task_id), "missing", rerun_task=True)
+    return record
 
 
 def load_index(location: Location, commits: Sequence[CommitRecord] | None = None) -> pa.Table:
-    """The index of the committed samples; `DamagedFile` when the finalised index disagrees with
-    the commit records or a file it needs is damaged."""
+    """The index of the committed samples, every column in memory; `DamagedFile` when the finalised
+    index disagrees with the commit records or a file it needs is damaged."""
+    if read_manifest(location) is not None:
+        return open_index(location).table()
     commits = committed_tasks(location) if commits is None else commits
     coverage = read_coverage(location)
     if coverage is None or not location.exists(INDEX_FILE):

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import pyarrow.compute as pc
 
 from schemas.shard import (
     COVER_ROWS,
@@ -201,12 +202,15 @@ def load_memory(
     check_source(source)
     found = dataset if isinstance(dataset, Dataset) else open_dataset(dataset, storage_options)
     chosen = found.chosen_rows(rows, objects)
-    index = found.index
-    shards = index.column("shard").to_pylist()
-    shard_rows = index.column("row").to_numpy().astype(np.int64, copy=False)
-    groups: dict[str, list[int]] = {}
-    for position, row in enumerate(chosen.tolist()):
-        groups.setdefault(shards[row], []).append(position)
+    names = found.samples.shards
+    shard_rows = found.samples.rows.astype(np.int64)
+    owner = found.samples.codes[chosen]
+    groups: dict[str, npt.NDArray[np.int64]] = {}
+    if chosen.size:
+        by_shard = np.argsort(owner, kind="stable")
+        bounds = np.flatnonzero(np.diff(owner[by_shard])) + 1
+        for positions in np.split(by_shard, bounds):
+            groups[names[int(owner[positions[0]])]] = positions.astype(np.int64)
 
     total = chosen.size
     ambiguous = covers and found.has_ambiguity
@@ -222,7 +226,7 @@ def load_memory(
     field_pieces: dict[str, list[tuple[npt.NDArray[np.int64], npt.NDArray[Any]]]] = {f.name: [] for f in sample_fields}
     done = 0
     for relative in sorted(groups):  # the reader's order: shards by path, samples in index order
-        positions = np.asarray(groups[relative], dtype=np.int64)
+        positions = groups[relative]
         local = shard_rows[chosen[positions]]
         shard = found.shard(relative)
         keys, sizes = _ragged_take(shard.array(keys_array(source)), shard.array(offsets_array(source)), local)
@@ -250,7 +254,7 @@ def load_memory(
     state_masks, label_masks = masks[:, VIEW_STATE_COLUMN].copy(), masks[:, LABEL_COLUMN].copy()
     packed_covers = None
     if ambiguous:
-        columns = {name: index.column(name).to_numpy() for name in ("label_support", "min_covers", "min_covers_exact")}
+        columns = {name: found.values(name) for name in ("label_support", "min_covers", "min_covers_exact")}
         cover_masks, cover_offsets = _pack(cover_pieces, total, np.dtype(np.uint64))
         universe, universe_offsets = _pack(universe_pieces, total, np.dtype(np.uint64))
         packed_covers = PackedCovers(
@@ -278,9 +282,8 @@ def load_index_facts(dataset: Dataset, source: Source = "points") -> MemoryDatas
     drawing a split or a training subset needs, for a dataset too large to hold (read from the
     index alone, no shard is opened)."""
     total = len(dataset)
-    index = dataset.index
-    states = index.column("view_state").to_numpy().astype(np.uint64)
-    labels = index.column("label").to_numpy().astype(np.uint64)
+    states = dataset.values("view_state").astype(np.uint64)
+    labels = dataset.values("label").astype(np.uint64)
     chosen = np.arange(total, dtype=np.int64)
     empty = np.zeros((0, 3), dtype=np.int16)
     return _held(dataset, source, chosen, empty, np.zeros(total + 1, dtype=np.int64), states, labels, None)
@@ -299,7 +302,9 @@ def _held(
     """The `MemoryDataset` of rows ``chosen`` of ``found``: its identity from ``dataset.json``."""
     config = found.info.config
     width = found.num_views
-    object_column = found.index.column("object_id").to_pylist()
+    objects = pc.dictionary_encode(found.column("object_id")).combine_chunks()
+    names = objects.dictionary.to_pylist()  # one string per object, shared by its samples
+    codes = objects.indices.to_numpy(zero_copy_only=False)
     return MemoryDataset(
         url=found.url,
         config_hash=found.info.config_hash,
@@ -315,7 +320,7 @@ def _held(
         label_masks=label_masks,
         view_state=bit_rows(state_masks, width),
         labels=bit_rows(label_masks, width),
-        object_ids=tuple(object_column[row] for row in chosen.tolist()),
+        object_ids=tuple(names[code] for code in codes[chosen].tolist()),
         covers=covers,
     )
 

@@ -20,7 +20,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.dataset import DatasetInfo
-from schemas.index import FailureRecord
+from schemas.index import CommitRecord, FailureRecord
 from schemas.shard import (
     COVER_ROWS,
     COVERAGE_GAINS,
@@ -40,9 +40,11 @@ from storage.dataset_info import read_info
 from storage.index import INDEX_COVERAGE_FILE as INDEX_COVERAGE_FILE
 from storage.index import INDEX_FILE as INDEX_FILE
 from storage.index import finalise as finalise
-from storage.index import load_index
+from storage.index import open_index
 from storage.location import Location, StorageError, open_location
+from storage.manifest import record_of
 from storage.occupancy import case_grid
+from storage.sample_index import SampleIndex, from_table, numpy_of
 from storage.samples import (
     KeyArray,
     best_views,
@@ -55,7 +57,7 @@ from storage.samples import (
 )
 from storage.shards import ShardReader
 from storage.store_errors import check_store, is_store_failure, storage_failure
-from storage.writer import read_failures
+from storage.writer import committed_tasks, read_failures
 
 SHARD_CACHE = 16
 
@@ -73,7 +75,7 @@ def open_dataset(url: str, storage_options: dict[str, Any] | None = None) -> Dat
     check_store(location)
     try:
         info = read_info(location)
-        return Dataset(location, info, load_index(location))
+        return Dataset(location, info, open_index(location))
     except StorageError:
         raise
     except Exception as exc:  # the store itself failed (damaged files are `DamagedFile`, named)
@@ -86,18 +88,21 @@ class Dataset:
     """Random access to samples (``ds[i]``), filters, object-level splits, shuffled iteration."""
 
     def __init__(
-        self, location: Location, info: DatasetInfo, index: pa.Table, verified: set[str] | None = None
+        self,
+        location: Location,
+        info: DatasetInfo,
+        index: SampleIndex | pa.Table,
+        verified: set[str] | None = None,
     ) -> None:
         self.location = location
         self.info = info
-        self.index = index
+        self.samples = index if isinstance(index, SampleIndex) else from_table(index)
+        """Where each sample lives; its index columns, read on demand (`storage.sample_index`)."""
         self._shards: OrderedDict[str, ShardReader] = OrderedDict()
         self._verified: set[str] = set() if verified is None else verified
         """Shards verified by this reader (shared with its selections), so a shard evicted from the
         cache and opened again is not listed again."""
         self._columns: dict[str, npt.NDArray[Any]] = {}
-        self._shard_col = index.column("shard").to_pylist()
-        self._row_col = index.column("row").to_numpy()
         self._voxel = info.config.voxel_size
         self._offset = np.asarray(info.config.grid_offset, dtype=np.float64)
 
@@ -111,7 +116,41 @@ class Dataset:
         return self.info.num_views
 
     def __len__(self) -> int:
-        return int(self.index.num_rows)
+        return len(self.samples)
+
+    @property
+    def index(self) -> pa.Table:
+        """Every index column of every sample, in memory (read on first use; a large dataset's reader
+        asks for the columns it needs instead: `column`)."""
+        return self.samples.table()
+
+    def column(self, name: str) -> pa.ChunkedArray:
+        """One index column of every sample (read once)."""
+        return self.samples.column(name)
+
+    def index_row(self, i: int) -> dict[str, Any]:
+        """Every index column of sample ``i`` (without reading the whole index)."""
+        return self.samples.row(i)
+
+    def values(self, name: str) -> npt.NDArray[Any]:
+        """One index column of every sample as numpy (read and converted once)."""
+        return self._column(name)
+
+    def task_records(self) -> list[CommitRecord]:
+        """Every committed task's record, sorted by task id: from the manifest when one names them (no
+        read per task), else the commit records."""
+        tasks = self.samples.tasks
+        if tasks is None:
+            return committed_tasks(self.location)
+        return sorted((record_of(row) for row in tasks.to_pylist()), key=lambda r: r.task_id)
+
+    def shard_of(self, i: int) -> str:
+        """The shard sample ``i`` lives in."""
+        return self.samples.shard(i)
+
+    def row_of(self, i: int) -> int:
+        """Its row there."""
+        return int(self.samples.rows[i])
 
     def failures(self) -> list[FailureRecord]:
         return read_failures(self.location)
@@ -126,7 +165,8 @@ class Dataset:
         reader = self._shards.get(relative)
         if reader is None:
             # verified whole before its first read, once per dataset and its selections
-            reader = ShardReader(self.location, relative, verify=relative not in self._verified)
+            span = self.samples.span(relative)
+            reader = ShardReader(self.location, relative, verify=relative not in self._verified, span=span)
             self._verified.add(relative)
             self._shards[relative] = reader
             if len(self._shards) > SHARD_CACHE:
@@ -137,15 +177,15 @@ class Dataset:
 
     def keys(self, i: int, source: str = "points") -> npt.NDArray[np.int16]:
         """Integer keys (K, 3) of sample i's ``points`` or ``observed`` set."""
-        shard = self.shard(self._shard_col[i])
-        return shard.key_set(source, int(self._row_col[i]))
+        shard = self.shard(self.shard_of(i))
+        return shard.key_set(source, self.row_of(i))
 
     def resampled_keys(self, i: int, num_points: int, seed: int, epoch: int, source: str = "points") -> KeyArray:
         """(num_points, 3) keys of sample i drawn from stream (seed, epoch, i) by the sample contract
         (`storage.samples.gather_clouds`): a version-4 refined cloud decodes only its window's chunks
         (`ShardReader.rows`, cached per shard), any other cloud is read whole."""
-        shard = self.shard(self._shard_col[i])
-        row = int(self._row_col[i])
+        shard = self.shard(self.shard_of(i))
+        row = self.row_of(i)
         if not windowed_cloud(self.info.schema_version, source):
             return resample_keys(shard.key_set(source, row), num_points, seed, epoch, i)
         offsets = np.asarray(shard.array(offsets_array(source)), dtype=np.int64)
@@ -159,14 +199,14 @@ class Dataset:
 
     def masks(self, i: int) -> tuple[int, int]:
         """(view_state, label) of sample i as integer bit masks."""
-        shard = self.shard(self._shard_col[i])
-        row = shard.array(MASKS)[int(self._row_col[i])]
+        shard = self.shard(self.shard_of(i))
+        row = shard.array(MASKS)[self.row_of(i)]
         return int(row[VIEW_STATE_COLUMN]), int(row[LABEL_COLUMN])
 
     @property
     def has_ambiguity(self) -> bool:
         """Whether the samples carry their minimum covers (schema version 2 and later)."""
-        return "label_support" in self.index.column_names
+        return "label_support" in self.samples.column_names
 
     def ambiguity(self, i: int) -> LabelAmbiguity:
         """Sample i's minimum covers, their count and support, and U's set-cover rows."""
@@ -175,8 +215,8 @@ class Dataset:
                 f"{self.url}: a version-{self.info.schema_version} dataset keeps no minimum covers; add them with "
                 f"`datagen shards relabel {self.url} --out NEW_URL` (no re-imaging)"
             )
-        shard = self.shard(self._shard_col[i])
-        row = int(self._row_col[i])
+        shard = self.shard(self.shard_of(i))
+        row = self.row_of(i)
         offsets = shard.array(offsets_array(COVERS))
         view_state = self.masks(i)[0]
         return LabelAmbiguity(
@@ -199,8 +239,8 @@ class Dataset:
                 f"{self.url}: a version-{self.info.schema_version} dataset keeps no next-view labels; add them with "
                 f"`datagen shards relabel {self.url} --out NEW_URL` (no re-imaging)"
             )
-        shard = self.shard(self._shard_col[i])
-        row = int(self._row_col[i])
+        shard = self.shard(self.shard_of(i))
+        row = self.row_of(i)
         gains = shard.array(VIEW_GAINS)[row]
         case = self.masks(i)[0]
         best, ties = best_views(gains[None, :], np.array([case], dtype=np.uint64), gains.shape[0])
@@ -219,7 +259,7 @@ class Dataset:
         """An index column as numpy, converted once per reader."""
         found = self._columns.get(name)
         if found is None:
-            found = self._columns[name] = self.index.column(name).to_numpy()
+            found = self._columns[name] = numpy_of(self.samples.column(name))
         return found
 
     def __getitem__(self, i: int) -> Sample:
@@ -232,7 +272,7 @@ class Dataset:
         i = i % len(self)
         view_state, label = self.masks(i)
         sample: Sample = {
-            "sample_id": self.index.column("sample_id")[i].as_py(),
+            "sample_id": self.samples.column("sample_id")[i].as_py(),
             "points": self.centres(self.keys(i, "points")),
             "observed": self.centres(self.keys(i, "observed")),
             "view_state": mask_bits(view_state, self.num_views),
@@ -264,17 +304,20 @@ class Dataset:
             if np.unique(chosen).size != chosen.size:
                 raise ValueError("rows repeat a sample (a row given more than once); give each dataset row once")
         if objects is not None:
-            wanted = {objects} if isinstance(objects, str) else set(objects)
-            ids = self.index.column("object_id").to_pylist()
-            names = self.index.column("object_name").to_pylist()
-            keep = [ids[row] in wanted or names[row] in wanted for row in chosen.tolist()]
-            chosen = chosen[np.asarray(keep, dtype=bool)]
+            chosen = chosen[self._of_objects(objects)[chosen]]
         return chosen
+
+    def _of_objects(self, objects: Sequence[str] | str) -> npt.NDArray[np.bool_]:
+        """Per sample: whether its object's id or name is among ``objects``."""
+        wanted = pa.array([objects] if isinstance(objects, str) else list(objects), pa.string())
+        keep = pc.or_(
+            pc.is_in(self.samples.column("object_name"), wanted), pc.is_in(self.samples.column("object_id"), wanted)
+        )
+        return np.asarray(keep.to_numpy(zero_copy_only=False), dtype=bool)
 
     def select(self, rows: npt.ArrayLike) -> Dataset:
         """A dataset over a subset of index rows (in the given order)."""
-        chosen = self.index.take(pa.array(np.asarray(rows, dtype=np.int64)))
-        return Dataset(self.location, self.info, chosen, self._verified)
+        return Dataset(self.location, self.info, self.samples.select(rows), self._verified)
 
     def filter(
         self,
@@ -283,26 +326,19 @@ class Dataset:
         case_sizes: Sequence[int] | int | None = None,
     ) -> Dataset:
         """Samples whose object (name or id), rotation and case size are among those given."""
-        keep = pa.array(np.ones(len(self), dtype=bool))
+        keep = np.ones(len(self), dtype=bool)
         if objects is not None:
-            wanted = [objects] if isinstance(objects, str) else list(objects)
-            keep = pc.and_(
-                keep,
-                pc.or_(
-                    pc.is_in(self.index["object_name"], pa.array(wanted)),
-                    pc.is_in(self.index["object_id"], pa.array(wanted)),
-                ),
-            )
+            keep &= self._of_objects(objects)
         if rotations is not None:
             wanted_r = [int(rotations)] if isinstance(rotations, (int, np.integer)) else [int(r) for r in rotations]
-            keep = pc.and_(keep, pc.is_in(self.index["rotation"], pa.array(wanted_r, pa.int16())))
+            keep &= np.isin(self._column("rotation"), wanted_r)
         if case_sizes is not None:
             wanted_c = [int(case_sizes)] if isinstance(case_sizes, (int, np.integer)) else [int(c) for c in case_sizes]
-            keep = pc.and_(keep, pc.is_in(self.index["case_size"], pa.array(wanted_c, pa.int16())))
-        return self.select(np.flatnonzero(keep.to_numpy(zero_copy_only=False)))
+            keep &= np.isin(self._column("case_size"), wanted_c)
+        return self.select(np.flatnonzero(keep))
 
     def object_ids(self) -> list[str]:
-        return sorted(set(self.index.column("object_id").to_pylist()))
+        return sorted(pc.unique(self.samples.column("object_id")).to_pylist())
 
     def split(self, val: float = 0.2, seed: int = 0) -> tuple[Dataset, Dataset]:
         """(train, val) by object, never by sample: every sample of an object lands on one side.
@@ -312,16 +348,13 @@ class Dataset:
         the one osvp's object split makes. A ``val`` outside [0, 1] is a `storage.samples.SplitError`
         (a ValueError).
         """
-        train, held = split_by_object(self.index.column("object_id").to_pylist(), val, seed)
+        train, held = split_by_object(self.samples.column("object_id").to_pylist(), val, seed)
         return self.select(train), self.select(held)
 
     # -- iteration ----------------------------------------------------------------------------
     def shard_blocks(self) -> list[npt.NDArray[np.int64]]:
         """Sample indices grouped by shard (shards sorted by path, rows in index order)."""
-        groups: dict[str, list[int]] = {}
-        for i, shard in enumerate(self._shard_col):
-            groups.setdefault(shard, []).append(i)
-        return [np.asarray(groups[s], dtype=np.int64) for s in sorted(groups)]
+        return self.samples.by_shard()
 
     def shuffled_order(self, seed: int, epoch: int = 0, shards_mixed: int = 4) -> npt.NDArray[np.int64]:
         """A shard-aware shuffle: shards in random order, taken ``shards_mixed`` at a time, their

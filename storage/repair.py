@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 from storage.index import INDEX_COVERAGE_FILE
 from storage.location import Location
+from storage.manifest import withdraw_tasks
 from storage.problems import Mend, Problem
 from storage.writer import commit_path, failure_path
 
@@ -44,10 +45,12 @@ def sort_problems(problems: list[Problem]) -> Findings:
 
 
 def withdraw(location: Location, task_ids: list[str]) -> None:
-    """Make these tasks absent: first the finalised index's record of what it covers (so readers
-    merge the fragments of the remaining commits instead of refusing an index that names a missing
-    task), then each task's commit and failure record. Their attempt files stay until the re-run's
-    sweep removes them; no reader follows them once the commit record is gone."""
+    """Make these tasks absent: first from the finalised index (the manifest written again without them;
+    an earlier datagen's record of what its index covers removed, so readers merge the fragments of the
+    remaining commits), so that no reader meets an index naming a missing task, then each task's commit
+    and failure record. Their attempt files stay until the re-run's sweep removes them; no reader
+    follows them once the commit record is gone."""
+    withdraw_tasks(location, task_ids)
     location.remove(INDEX_COVERAGE_FILE)
     for task_id in task_ids:
         location.remove(commit_path(task_id))

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import posixpath
-from collections.abc import Iterable
+import zipfile
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -20,11 +20,13 @@ import numpy.typing as npt
 import zarr
 import zarr.codecs
 from zarr.core.array_spec import ArrayConfigParams
-from zarr.storage import FsspecStore, LocalStore
+from zarr.core.buffer import default_buffer_prototype
+from zarr.storage import MemoryStore
 
-from schemas.shard import ShardAttributes, array_names, ordered_points
+from schemas.shard import ShardAttributes, array_names, ordered_points, single_file
 from storage.codec import COMPRESSORS, RowTaker, decoded_whole, encoded_row_shard
-from storage.location import Location, damaged, first_line, is_temporary
+from storage.group_files import GroupFiles, group_files, zarr_store, zip_bytes
+from storage.location import Location, damaged, first_line
 from storage.store_errors import is_store_failure, storage_failure
 
 KEY_CHUNK_ROWS = 32_768
@@ -40,22 +42,37 @@ could not tell it from a lost file. Every chunk is written, so a missing chunk f
 damage (a task whose every label is empty stores all-zero covers)."""
 
 
-def zarr_store(location: Location, relative: str, read_only: bool) -> Any:
-    if location.is_local:
-        return LocalStore(location.path(relative), read_only=read_only)
-    return FsspecStore.from_url(
-        location.url_of(relative), storage_options=location.storage_options or None, read_only=read_only
-    )
-
-
 def write_shard_group(
     location: Location, relative: str, attributes: ShardAttributes, arrays: dict[str, npt.NDArray[Any]]
-) -> None:
-    """Write every array of a shard group once (the group is new: one attempt, one path)."""
+) -> int | None:
+    """Write every array of a shard group once (the group is new: one attempt, one path): a folder of
+    files for layouts 1-4, one ZIP of the same members from layout 5 (`schemas.shard.single_file`).
+    Returns the bytes written when the group is one file."""
     missing = sorted(set(array_names(attributes.schema_version)) - set(arrays))
     if missing:
         raise ValueError(f"shard arrays missing: {missing}")
-    group = zarr.open_group(zarr_store(location, relative, read_only=False), mode="w")
+    if single_file(attributes.schema_version):
+        members: dict[str, Any] = {}
+        _fill_group(MemoryStore(members), attributes, arrays, members.__setitem__)
+        blob = zip_bytes({name: members[name].to_bytes() for name in members})
+        location.write_atomic(relative, blob)
+        return len(blob)
+
+    def put(member: str, blob: Any) -> None:
+        target = location.path(f"{relative}/{member}")
+        location.fs.makedirs(posixpath.dirname(target), exist_ok=True)
+        location.fs.pipe_file(target, blob.to_bytes())
+
+    _fill_group(zarr_store(location, relative, read_only=False), attributes, arrays, put)
+    return None
+
+
+def _fill_group(
+    store: Any, attributes: ShardAttributes, arrays: dict[str, npt.NDArray[Any]], put: Callable[[str, Any], None]
+) -> None:
+    """Create the group's arrays in ``store`` and write their data; a sharded key array's one shard
+    file is encoded here (`storage.codec.encoded_row_shard`) and handed to ``put`` (member, buffer)."""
+    group = zarr.open_group(store, mode="w")
     for name in sorted(arrays):
         data = np.ascontiguousarray(arrays[name])
         rows = KEY_CHUNK_ROWS
@@ -82,50 +99,20 @@ def write_shard_group(
                 compressors=COMPRESSORS,
                 config=WRITE_EVERY_CHUNK,
             )
-        if data.size and not _wrote_row_shard(location, f"{relative}/{name}", data, array):
+        if not data.size:
+            continue
+        blob = encoded_row_shard(data, dict(array.metadata.to_dict()))
+        if blob is None:
             array[...] = data
+        else:  # the same bytes zarr writes, for a fraction of its CPU
+            put(f"{name}/c/0/0", default_buffer_prototype().buffer.from_bytes(blob))
     group.attrs.put(attributes.model_dump(mode="json"))
 
 
-def _wrote_row_shard(location: Location, relative: str, data: npt.NDArray[Any], array: zarr.Array[Any]) -> bool:
-    """Write a sharded key array's one shard file as zarr would (`storage.codec.encoded_row_shard`,
-    the same bytes for a fraction of zarr's CPU); False, writing nothing, for any other layout."""
-    blob = encoded_row_shard(data, dict(array.metadata.to_dict()))
-    if blob is None:
-        return False
-    target = location.path(f"{relative}/c/0/0")
-    location.fs.makedirs(posixpath.dirname(target), exist_ok=True)
-    location.fs.pipe_file(target, blob)
-    return True
-
-
-DAMAGE = (OSError, ValueError, KeyError, TypeError, IndexError, RuntimeError, EOFError)
+DAMAGE = (OSError, ValueError, KeyError, TypeError, IndexError, RuntimeError, EOFError, zipfile.BadZipFile)
 """What zarr, numcodecs and the stores raise on a missing, truncated or corrupt file (a CRC32C
 mismatch is a ValueError, a missing member a KeyError, bad metadata a JSONDecodeError or a
 validation error, a short Blosc frame a RuntimeError)."""
-
-
-def local_files(top: str) -> list[str]:
-    """Paths, relative to ``top`` and sorted, of the non-empty files below local folder ``top`` (none
-    when it is missing): what fsspec's ``find`` lists there, without its cost (about 3 ms for a shard
-    of 30 files, a tenth of that here), which a streaming reader pays for every shard."""
-    found: list[str] = []
-    folders = [("", top)]
-    while folders:
-        prefix, folder = folders.pop()
-        try:
-            entries = list(os.scandir(folder))
-        except (FileNotFoundError, NotADirectoryError):
-            continue
-        for entry in entries:
-            try:
-                if entry.is_dir():
-                    folders.append((f"{prefix}{entry.name}/", entry.path))
-                elif entry.stat().st_size:
-                    found.append(f"{prefix}{entry.name}")
-            except FileNotFoundError:
-                continue  # gone since the listing (a temporary file renamed into place)
-    return sorted(found)
 
 
 class ShardReader:
@@ -137,13 +124,16 @@ class ShardReader:
     silently. `storage.validate` opens without it and reports each finding as a line instead.
     """
 
-    def __init__(self, location: Location, relative: str, verify: bool = True) -> None:
+    def __init__(
+        self, location: Location, relative: str, verify: bool = True, span: tuple[str, int, int] | None = None
+    ) -> None:
         self.location = location
         self.relative = relative
+        self.files: GroupFiles = group_files(location, relative, span)
+        """The group's members (a folder's files, or one ZIP's; ``span``: a byte range of a pack)."""
         self._cache: dict[str, npt.NDArray[Any]] = {}
         self._takers: dict[str, RowTaker] = {}
         self._nodes: dict[str, zarr.Array[Any]] = {}
-        self._files: set[str] | None = None
         self._zarr_group: zarr.Group | None = None
         found = self._plain_attributes()
         if found is None:
@@ -162,9 +152,12 @@ class ShardReader:
         its event loop thread)."""
         if self._zarr_group is None:
             try:
-                self._zarr_group = zarr.open_group(zarr_store(self.location, self.relative, read_only=True), mode="r")
+                self._zarr_group = zarr.open_group(self.files.zarr_store(), mode="r")
             except FileNotFoundError as exc:
                 raise self._damage("the shard group is missing") from exc
+            except zipfile.BadZipFile as exc:
+                problem = f"the shard file is not a readable ZIP ({first_line(exc)}); it is truncated or corrupt"
+                raise self._damage(problem) from exc
             except DAMAGE as exc:
                 raise self._damage(f"unreadable group metadata zarr.json ({first_line(exc)})", cause=exc) from exc
         return self._zarr_group
@@ -174,7 +167,7 @@ class ShardReader:
         Zarr v3 group as the writer writes it (nothing but its attributes) and they validate; else None,
         and zarr opens the group, raising the reader's usual errors for what is wrong with it."""
         try:
-            meta = json.loads(self.location.read_bytes(f"{self.relative}/zarr.json"))
+            meta = json.loads(self.files.read("zarr.json"))
             if (
                 not isinstance(meta, dict)
                 or set(meta) - {"zarr_format", "node_type", "attributes"}
@@ -214,7 +207,7 @@ class ShardReader:
         per-chunk machinery costs several times the decompression of a version-4 ``points_keys``'
         hundreds of small chunks), through zarr otherwise and for every failure, which names the damage."""
         if name not in self._cache:
-            found = decoded_whole(self.location, f"{self.relative}/{name}")
+            found = decoded_whole(self.files, name)
             if found is not None:
                 # writable, as zarr's: a one-chunk array is a view of the decoded bytes
                 self._cache[name] = found if found.flags.writeable else found.copy()
@@ -284,9 +277,8 @@ class ShardReader:
         Read from the array's ``zarr.json`` directly (``shape`` and the regular ``chunk_grid`` of the
         Zarr v3 spec): opening each array through zarr costs ~0.7 ms, ten times that.
         """
-        relative = f"{self.relative}/{name}/zarr.json"
         try:
-            metadata = json.loads(self.location.read_bytes(relative))
+            metadata = json.loads(self.files.read(f"{name}/zarr.json"))
             shape, grid = metadata["shape"], metadata["chunk_grid"]["configuration"]["chunk_shape"]
             return math.prod(-(-int(size) // int(step)) for size, step in zip(shape, grid, strict=True))
         except FileNotFoundError:
@@ -295,20 +287,8 @@ class ShardReader:
             raise self._damage(f"unreadable metadata {name}/zarr.json ({first_line(exc)})", cause=exc) from exc
 
     def _listing(self) -> set[str]:
-        """Non-empty files of the group, relative to it (temporaries left out); listed once."""
-        if self._files is None:
-            if self.location.is_local:
-                relative: Iterable[str] = local_files(self.location.path(self.relative))
-            else:
-                root = self.location.path(self.relative).strip("/")
-                try:
-                    found = self.location.fs.find(self.location.path(self.relative), detail=True)
-                except FileNotFoundError:
-                    found = {}
-                sized = (str(path).strip("/") for path, info in found.items() if info.get("size"))
-                relative = (path.removeprefix(root).strip("/") for path in sized)
-            self._files = {path for path in relative if not is_temporary(path)}
-        return self._files
+        """Non-empty members of the group (temporaries left out); listed once."""
+        return self.files.members()
 
     def array_dtype(self, name: str) -> np.dtype[Any]:
         return np.dtype(self._array(name).dtype)

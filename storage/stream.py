@@ -56,7 +56,7 @@ import queue
 import threading
 from collections.abc import Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -194,20 +194,26 @@ class ShardStream(IterableDataset[Batch]):
         total = len(dataset)
         keep = np.zeros(total, dtype=bool)
         keep[dataset.chosen_rows(rows, objects)] = True
-        shard_col = np.asarray(dataset.index.column("shard").to_pylist(), dtype=object)
-        row_col = dataset.index.column("row").to_numpy().astype(np.int64)
+        codes = dataset.samples.codes.astype(np.int64)
+        names = dataset.samples.shards
         selected = np.flatnonzero(keep)
-        self.shards: list[str] = sorted(set(shard_col[selected].tolist()))
-        position = {shard: i for i, shard in enumerate(self.shards)}
-        owner = np.fromiter((position[s] for s in shard_col[selected].tolist()), np.int64, selected.size)
+        used = np.unique(codes[selected])
+        used = used[np.argsort(np.asarray([names[c] for c in used.tolist()], dtype=object), kind="stable")]
+        self.shards: list[str] = [names[c] for c in used.tolist()]
+        """The shards holding selected rows, sorted by path."""
+        self._spans = {name: span for name in self.shards if (span := dataset.samples.span(name)) is not None}
+        """Where a packed dataset's shards lie (none otherwise)."""
+        position = np.full(len(names), -1, dtype=np.int64)
+        position[used] = np.arange(used.size, dtype=np.int64)
+        owner = position[codes[selected]]
         grouped = np.argsort(owner, kind="stable")
         bounds = np.searchsorted(owner[grouped], np.arange(len(self.shards) + 1))
         self._rows = [selected[grouped[a:b]] for a, b in itertools.pairwise(bounds.tolist())]
         """Per shard: the selected dataset rows, ascending."""
         self._shard_rows = np.full(total, -1, dtype=np.int64)
-        self._shard_rows[selected] = row_col[selected]
+        self._shard_rows[selected] = dataset.samples.rows[selected]
         """Per dataset row: its row in its shard (-1 when not selected)."""
-        self._support = dataset.index.column("label_support").to_numpy().astype(np.uint64) if self.ambiguous else None
+        self._support = dataset.values("label_support").astype(np.uint64) if self.ambiguous else None
         self.num_samples = int(selected.size)
 
     # -- epochs and positions -----------------------------------------------------------------
@@ -352,9 +358,8 @@ class ShardStream(IterableDataset[Batch]):
 
     def read_shard(self, shard: int, needed: npt.NDArray[np.bool_], epoch: int) -> dict[int, _Prepared]:
         """Read shard ``shard`` whole (verified first) and resample its rows that ``needed`` marks."""
-        base = self._reader_location()
-        files = _MetadataKept(base.fs, base.root, base.url, base.storage_options)
-        reader = ShardReader(files, self.shards[shard], verify=True)
+        relative = self.shards[shard]
+        reader = ShardReader(self._reader_location(), relative, verify=True, span=self._spans.get(relative))
         arrays: dict[str, npt.NDArray[Any]] = {}
 
         def array(name: str) -> npt.NDArray[Any]:
@@ -502,23 +507,6 @@ class _ReadAhead:
 
     def close(self) -> None:
         self._pool.shutdown(wait=True, cancel_futures=True)
-
-
-@dataclass(frozen=True)
-class _MetadataKept(Location):
-    """A dataset location that keeps the ``zarr.json`` files read through it: one per shard read,
-    so the array metadata `ShardReader.verify` reads serves `whole_array` too (on S3, a request less
-    per array)."""
-
-    kept: dict[str, bytes] = field(default_factory=dict)
-
-    def read_bytes(self, relative: str) -> bytes:
-        if not relative.endswith("zarr.json"):
-            return super().read_bytes(relative)
-        found = self.kept.get(relative)
-        if found is None:
-            found = self.kept[relative] = super().read_bytes(relative)
-        return found
 
 
 def _round_robin(counts: Sequence[int], taken: int) -> tuple[list[int], int]:

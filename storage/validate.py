@@ -7,14 +7,16 @@ the row.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
@@ -50,15 +52,18 @@ from storage.dataset_info import read_info
 from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
 from storage.gains import MaskCounts
 from storage.location import DamagedFile, Location, StorageError, open_location
+from storage.manifest import TaskRecords, task_records
 from storage.occupancy import PACKED_CELLS
 from storage.problems import Mend, Problem, lines
+from storage.sample_index import numpy_of
 from storage.shards import ShardReader
 from storage.store_errors import check_store
 from storage.visibility import VisibilityJudge, key_view_masks
-from storage.writer import read_commits
 
 SAMPLED_ROWS_PER_SHARD = 8
 SHARD_THREADS = 8
+SAMPLE_STREAM = 11
+"""The purpose number of the stream that draws a sampled validation's tasks."""
 
 
 @dataclass(frozen=True)
@@ -84,6 +89,9 @@ class Validation:
 
     problems: list[Problem] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    tasks_checked: int = 0
+    """Tasks whose shard (and fragment) were read and checked: all of them, or a ``sample`` of them."""
+    tasks_total: int = 0
 
     @property
     def lines(self) -> list[str]:
@@ -115,9 +123,16 @@ def validate_dataset(
     storage_options: dict[str, Any] | None = None,
     shard_check: ShardCheck | None = None,
     progress: Callable[[int, int], None] | None = None,
+    sample: float | None = None,
 ) -> Validation:
     """`validate`'s problems as records (`storage.problems.Problem`) plus warnings; never raises for a
-    damaged file (each is a problem); an unreachable store is `StoreUnreachable`."""
+    damaged file (each is a problem); an unreachable store is `StoreUnreachable`.
+
+    ``sample`` (0 < sample <= 1): read and check the shards and index fragments of that share of the
+    tasks only (at least one, drawn from ``seed``); every record, the finalised index and the failure
+    records are still checked whole. The result says how many tasks were checked."""
+    if sample is not None and not 0 < sample <= 1:
+        raise StorageError(f"--sample {sample}: give a share of the tasks between 0 and 1 (0.01 checks 1 %)")
     location = open_location(url, storage_options)
     check_store(location)  # an unreachable store is an error, not a problem of the dataset
     found = Validation()
@@ -128,38 +143,59 @@ def validate_dataset(
         found.problems.append(Problem("dataset", exc.relative, exc.problem, Mend.NONE))
     except StorageError as exc:  # no dataset here at all
         return Validation([Problem("dataset", "", str(exc), Mend.NONE)])
-    commits, unreadable = read_commits(location)
-    found.problems.extend(unreadable)
+    tasks = task_records(location)
+    commits = tasks.records
+    chosen = sampled_tasks(commits, sample, seed)
+    found.problems.extend(tasks.problems)
     if info is not None:
-        found.problems.extend(_check_shards(location, info, commits, full, seed, shard_check, progress))
-    found.problems.extend(_check_index(location, commits, None if info is None else info.schema_version))
+        found.problems.extend(_check_shards(location, info, tasks, chosen, full, seed, shard_check, progress))
+    packed = bool(tasks.spans)
+    version = None if info is None else info.schema_version
+    found.problems.extend(_check_index(location, commits, version, packed, chosen))
     failure_problems, stale = check_failures(location, commits)
     found.problems.extend(failure_problems)
     found.warnings.extend(stale + leftover_temporaries(location))
-    return found
+    return replace(found, tasks_checked=len(chosen), tasks_total=len(commits))
+
+
+def sampled_tasks(records: list[CommitRecord], sample: float | None, seed: int) -> list[CommitRecord]:
+    """Every record, or a seeded share ``sample`` of them (at least one), in task order."""
+    if sample is None or sample >= 1 or not records:
+        return list(records)
+    count = max(1, math.ceil(sample * len(records)))
+    chosen = np.random.default_rng(np.random.SeedSequence([seed, SAMPLE_STREAM])).choice(
+        len(records), count, replace=False
+    )
+    return [records[i] for i in sorted(chosen.tolist())]
 
 
 def _check_shards(
     location: Location,
     info: DatasetInfo,
+    tasks: TaskRecords,
     commits: list[CommitRecord],
     full: bool,
     seed: int,
     shard_check: ShardCheck | None,
     progress: Callable[[int, int], None] | None,
 ) -> list[Problem]:
+    """The shards of ``commits`` (all tasks, or a sample of them), side by side."""
     problems: list[Problem] = []
     num_views, config = info.num_views, info.config
+    numbers = {record.task_id: number for number, record in enumerate(tasks.records)}
 
-    def check(numbered: tuple[int, CommitRecord]) -> list[Problem]:
-        number, record = numbered
-        rng = np.random.default_rng([seed, number])  # one stream per shard: threads cannot reorder draws
-        return list(_check_shard(location, record, info.schema_version, num_views, config, full, rng, shard_check))
+    def check(record: CommitRecord) -> list[Problem]:
+        # one stream per shard, numbered in the whole dataset: threads and sampling cannot reorder draws
+        rng = np.random.default_rng([seed, numbers[record.task_id]])
+        span = tasks.spans.get(record.shard)
+        return list(
+            _check_shard(location, record, info.schema_version, num_views, config, full, rng, shard_check, span)
+        )
 
     # Shards are checked side by side: a shard costs ~40 small zarr reads whose latency (an event
     # loop round trip locally, a request on an object store) overlaps across threads.
     with ThreadPoolExecutor(max_workers=SHARD_THREADS) as pool:
-        for done, shard_problems in enumerate(pool.map(check, enumerate(commits)), start=1):
+        for done, shard_problems in enumerate(pool.map(check, commits), start=1):
             problems.extend(shard_problems)
             if progress:
                 progress(done, len(commits))
@@ -175,10 +211,11 @@ def _check_shard(
     full: bool,
     rng: np.random.Generator,
     shard_check: ShardCheck | None = None,
+    span: tuple[str, int, int] | None = None,
 ) -> Iterator[Problem]:
     at = _Shard(record)
-    try:
-        shard = ShardReader(location, record.shard, verify=False)  # each finding becomes a problem below
+    try:  # verified below: each finding becomes a problem
+        shard = ShardReader(location, record.shard, verify=False, span=span)
     except DamagedFile as exc:  # a missing or unreadable group: report, keep checking others
         yield at("shard", f"cannot open shard ({exc.problem})")
         return
@@ -467,10 +504,19 @@ def _check_next_view(
                 yield at("gains", f"{name} differ from the gains recounted from the stored sets", name, f"row {row}")
 
 
-def _check_index(location: Location, commits: list[CommitRecord], schema_version: int | None) -> Iterator[Problem]:
-    """The fragments, the finalised index against the commit records, then each row of the index
-    readers would use (the finalised one when it covers the commits, else the merged fragments)."""
-    found, fragments = check_fragments(location, commits, schema_version)
+def _check_index(
+    location: Location,
+    commits: list[CommitRecord],
+    schema_version: int | None,
+    packed: bool = False,
+    chosen: list[CommitRecord] | None = None,
+) -> Iterator[Problem]:
+    """The fragments (of the ``chosen`` tasks: all by default), the finalised index against the commit
+    records, then each row of the index readers would use (the finalised one when it covers the commits,
+    else the merged fragments). A packed dataset's fragments are copies of its samples table inside the
+    packs: the table is checked."""
+    checked = commits if chosen is None else chosen
+    found, fragments = check_fragments(location, checked, schema_version) if not packed else ([], [])
     yield from found
     found, finalised = check_finalised_index(location, commits)
     yield from found
@@ -480,23 +526,49 @@ def _check_index(location: Location, commits: list[CommitRecord], schema_version
         index = pa.concat_tables(fragments)
     else:
         return
+    yield from _duplicate_samples(index)
+    yield from _rows_outside_their_shards(index, commits)
+
+
+def _duplicate_samples(index: pa.Table) -> Iterator[Problem]:
+    """A problem per index row whose sample id an earlier row holds (found by sorting, not by a set of
+    millions of Python strings)."""
+    ids = index.column("sample_id")
+    order = pc.sort_indices(ids).to_numpy()  # stable: equal ids keep their index order
+    ordered = ids.take(pa.array(order))
+    same = pc.equal(ordered.slice(1), ordered.slice(0, max(len(ordered) - 1, 0)))
+    again = np.flatnonzero(numpy_of(same).astype(bool)) + 1 if len(ordered) > 1 else np.zeros(0, np.int64)
+    if not again.size:
+        return
+    first_of = np.arange(len(order))
+    starts = np.ones(len(order), dtype=bool)
+    starts[again] = False
+    first_of = np.maximum.accumulate(np.where(starts, first_of, 0))
+    shards, rows = index.column("shard"), numpy_of(index.column("row"))
+    place = np.empty_like(order)
+    place[order] = np.arange(len(order))
+    for position in sorted(int(order[k]) for k in again.tolist()):
+        first = int(order[first_of[place[position]]])
+        sample, shard = ids[position].as_py(), shards[position].as_py()
+        message = f"duplicate sample id {sample} (also {shards[first].as_py()} row {int(rows[first])})"
+        yield Problem("index-row", shard, message, Mend.NONE, place=f"row {int(rows[position])}")
+
+
+def _rows_outside_their_shards(index: pa.Table, commits: list[CommitRecord]) -> Iterator[Problem]:
+    """A problem per index row naming a shard no commit record names, or a row outside its shard."""
     committed = {r.shard: r for r in commits}
-    sample_ids = index.column("sample_id").to_pylist()
-    shards = index.column("shard").to_pylist()
-    rows = index.column("row").to_pylist()
-    seen: dict[str, int] = {}
-    for position, sample in enumerate(sample_ids):
-        if sample in seen:
-            first = seen[sample]
-            message = f"duplicate sample id {sample} (also {shards[first]} row {rows[first]})"
-            yield Problem("index-row", shards[position], message, Mend.NONE, place=f"row {rows[position]}")
-        else:
-            seen[sample] = position
-    for position, (shard, row) in enumerate(zip(shards, rows, strict=True)):
+    encoded = pc.dictionary_encode(index.column("shard")).combine_chunks()
+    names = encoded.dictionary.to_pylist()
+    codes = encoded.indices.to_numpy(zero_copy_only=False)
+    counts = np.asarray([committed[n].num_samples if n in committed else -1 for n in names], dtype=np.int64)
+    rows = numpy_of(index.column("row")).astype(np.int64)
+    limit = counts[codes] if codes.size else np.zeros(0, dtype=np.int64)
+    for position in np.flatnonzero((limit < 0) | (rows < 0) | (rows >= limit)).tolist():
+        shard, row = names[int(codes[position])], int(rows[position])
         owner = committed.get(shard)
         if owner is None:
             message = f"points to {shard}, which no commit record names"
             yield Problem("index-row", "index", message, Mend.INDEX, place=f"row {position}")
-        elif not 0 <= row < owner.num_samples:
+        else:
             message = f"row {row} is outside {shard} ({owner.num_samples} samples)"
             yield Problem("index-row", "index", message, Mend.INDEX, owner.task_id, place=f"row {position}")

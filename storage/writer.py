@@ -1,7 +1,8 @@
 """The commit protocol: how a task's samples become visible, exactly once, whatever crashes.
 
-1. The attempt writes its shard group ``shards/<task>/<attempt>.zarr`` (a path no other attempt
-   shares), then its index fragment ``shards/<task>/<attempt>.parquet``.
+1. The attempt writes its shard group ``shards/<task>/<attempt>.zarr.zip`` (one file from layout 5,
+   a folder ``<attempt>.zarr`` before; a path no other attempt shares), then its index fragment
+   ``shards/<task>/<attempt>.parquet``.
 2. It publishes ``commits/<task>.json`` naming itself, last, atomically and only if no commit record
    exists yet. Readers follow commit records only, so they never see a half-written shard, and a
    slow old attempt finishing late can never replace the committed one.
@@ -26,7 +27,8 @@ from pydantic import ValidationError
 
 from schemas.dataset import DATASET_FILE
 from schemas.index import INDEX_SCHEMAS, CommitRecord, FailureRecord, StepSeconds, TaskTimings
-from schemas.shard import ShardAttributes
+from schemas.shard import ShardAttributes, shard_suffix
+from schemas.version import SCHEMA_VERSION
 from storage.location import RERUN_FIX, DamagedFile, Location, damaged, first_validation_error, is_temporary
 from storage.parquet import parquet_bytes
 from storage.problems import Mend, Problem
@@ -52,8 +54,8 @@ class ShardPayload:
     """The task's per-step time so far; `write_task` adds its write and keeps it in the commit record."""
 
 
-def shard_path(task_id: str, attempt_id: str) -> str:
-    return f"{SHARDS}/{task_id}/{attempt_id}.zarr"
+def shard_path(task_id: str, attempt_id: str, schema_version: int = SCHEMA_VERSION) -> str:
+    return f"{SHARDS}/{task_id}/{attempt_id}{shard_suffix(schema_version)}"
 
 
 def fragment_path(task_id: str, attempt_id: str) -> str:
@@ -97,11 +99,12 @@ def write_task(location: Location, payload: ShardPayload, attempt_id: str) -> Co
     existing = read_commit(location, task_id)
     if existing is not None:
         return existing
-    shard = shard_path(task_id, attempt_id)
+    shard = shard_path(task_id, attempt_id, attributes.schema_version)
     fragment = fragment_path(task_id, attempt_id)
     cpu, wall = time.process_time(), time.perf_counter()
-    write_shard_group(location, shard, attributes, payload.arrays)
-    location.write_atomic(fragment, _fragment_bytes(payload, shard, attempt_id))
+    shard_bytes = write_shard_group(location, shard, attributes, payload.arrays)
+    fragment_bytes = _fragment_bytes(payload, shard, attempt_id)
+    location.write_atomic(fragment, fragment_bytes)
     record = CommitRecord(
         schema_version=attributes.schema_version,
         task_id=task_id,
@@ -110,6 +113,7 @@ def write_task(location: Location, payload: ShardPayload, attempt_id: str) -> Co
         index_fragment=fragment,
         num_samples=attributes.num_samples,
         timings=_with_write(payload.timings, time.process_time() - cpu, time.perf_counter() - wall),
+        stored_bytes=None if shard_bytes is None else shard_bytes + len(fragment_bytes),
     )
     if location.create_exclusive(commit_path(task_id), record.model_dump_json().encode()):
         location.remove(failure_path(task_id))

@@ -30,6 +30,14 @@ def validate(
         bool, typer.Option("--all", help="Check every label with the solver (default: a seeded sample per shard).")
     ] = False,
     seed: Annotated[int, typer.Option("--seed", min=0, help="Seeds which rows are sampled without --all.")] = 0,
+    sample: Annotated[
+        float | None,
+        typer.Option(
+            "--sample",
+            help="Read and check the shards of this share of the tasks only (0.01: 1 %, seeded by --seed); "
+            "every record and the index are still checked whole.",
+        ),
+    ] = None,
 ) -> None:
     """Check structure, index, records and labels (cover, minimum, lexicographic); exit 0 only when all holds.
 
@@ -56,11 +64,12 @@ def validate(
                 storage_options=options,
                 shard_check=checker,
                 progress=lambda done, total: bar.update(shards, completed=done, total=total),
+                sample=sample,
             )
         problems = found.lines
         if checker is not None:
             report = checker.finish()
-        checked, tasks = (report.checked, report.shards) if report is not None else (0, 0)
+        checked = report.checked if report is not None else 0
         if report is not None:
             problems.extend(_new_label_lines(found.problems, report))
         for line in problems:
@@ -68,11 +77,20 @@ def validate(
         for line in found.warnings:
             say(f"warning: {line}")
         scope = "every label" if every else "a sample of labels"
+        share = ""
+        if found.tasks_checked < found.tasks_total:
+            percent = 100 * found.tasks_checked / found.tasks_total
+            share = f"; shards of {found.tasks_checked} of {found.tasks_total} tasks checked ({percent:.1f} %)"
         warned = f", {_count(len(found.warnings), 'warning')} (harmless leftovers)" if found.warnings else ""
         if problems:
-            say(f"{_count(len(problems), 'problem')} ({checked} labels checked with the solver, {scope}){warned}")
+            say(
+                f"{_count(len(problems), 'problem')} ({checked} labels checked with the solver, {scope}{share}){warned}"
+            )
             raise typer.Exit(1)
-        say(f"ok: {_count(tasks, 'task')} sound, {checked} labels checked with the solver ({scope}){warned}")
+        sound = f"{_count(found.tasks_total, 'task')} sound"
+        if share:  # a sample: say what was read, not more
+            sound = f"{found.tasks_checked} of {_count(found.tasks_total, 'task')} read and sound, every record sound"
+        say(f"ok: {sound}, {checked} labels checked with the solver ({scope}{share}){warned}")
 
 
 def _count(number: int, noun: str) -> str:

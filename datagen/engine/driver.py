@@ -347,7 +347,7 @@ def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> d
     """Finalise the index and clean up leftovers; the job's summary, counted from the dataset."""
     with _store_errors(location.url):
         commits = committed_tasks(location)
-        index = finalise(location, commits)
+        finalised = finalise(location, commits)
     task_ids = ledger.task_ids(job_id)
     job_tasks = set(task_ids)
     summary: dict[str, Any] = {"step_seconds": step_totals(r for r in commits if r.task_id in job_tasks).to_json()}
@@ -363,7 +363,7 @@ def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> d
             "tasks": sum(counts.values()),
             "done": counts.get(DONE, 0),
             "failed": counts.get(FAILED, 0) + len(spec.line_errors),
-            "samples": index.num_rows,
+            "samples": finalised.num_samples,
             "line_errors": spec.line_errors,
             "failures": [f"{task.object.origin}: {task.task_id}: {error}" for task, error in failed],
             "swept": len(swept),

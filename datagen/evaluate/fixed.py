@@ -121,26 +121,24 @@ def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> Cas
     from storage import open_dataset
 
     dataset = open_dataset(url, storage_options)
-    index = dataset.index
     num_views = dataset.num_views
+    single = np.flatnonzero(dataset.values("case_size") == 1)  # index columns, not the whole index
+    states = dataset.values("view_state")[single].astype(np.uint64)
+    owners = dataset.samples.codes[single]
     singles: dict[str, list[int]] = defaultdict(list)
-    shards: dict[str, str] = {}
-    columns = (index.column(c).to_pylist() for c in ("task_id", "shard", "view_state", "case_size"))
-    for task, shard, state, size in zip(*columns, strict=True):
-        shards[task] = shard
-        if size == 1:
-            singles[task].append(int(state).bit_length() - 1)
+    for code, state in zip(owners.tolist(), states.tolist(), strict=True):
+        singles[dataset.samples.shards[code]].append(int(state).bit_length() - 1)
     weights: dict[int, int] = defaultdict(int)
     initial = cases = 0
-    for task in sorted(singles):
-        reader = dataset.shard(shards[task])
+    for shard in sorted(singles):
+        reader = dataset.shard(shard)
         keys, offsets = reader.array(keys_array("visible")), reader.array(offsets_array("visible"))
         packed = pack_keys(keys)
         masks, counts = visibility_masks([packed[offsets[v] : offsets[v + 1]] for v in range(num_views)])
         reference = int(counts.sum())
         if not reference:
             continue
-        views = np.array(singles[task], dtype=np.uint64)
+        views = np.array(singles[shard], dtype=np.uint64)
         held = ((masks[:, None] >> views[None, :]) & np.uint64(1)).sum(axis=1).astype(np.int64)
         cases += views.size
         initial += sum(

@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 import highspy
 import numpy as np
 import numpy.typing as npt
+import pyarrow as pa
 
 from datagen.pipeline import setcover
 from schemas.config import MAX_VIEWS, GenerationConfig
@@ -42,12 +43,13 @@ from storage import (
     DamagedFile,
     Location,
     ShardReader,
-    load_index,
     open_location,
-    read_commits,
     read_info,
     undominated,
 )
+from storage.index import open_index
+from storage.manifest import task_records
+from storage.sample_index import SampleIndex, numpy_of
 
 if TYPE_CHECKING:
     from datagen.inspection.coverage_check import VisibilityRows
@@ -150,7 +152,7 @@ def check_labels(
 
     def check(record: CommitRecord) -> list[LabelProblem]:
         try:
-            shard = ShardReader(location, record.shard)
+            shard = ShardReader(location, record.shard, span=checker.spans.get(record.shard))
         except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
             line = f"{record.shard}: cannot check labels ({_why(exc)})"
             return [LabelProblem(record.shard, None, UNREADABLE, line)]
@@ -175,12 +177,15 @@ class ShardLabelCheck:
 
     def __init__(self, location: Location, full: bool, seed: int = 0, search_limit: int = SEARCH_LIMIT) -> None:
         info = read_info(location)
-        self.records = read_commits(location)[0]
+        tasks = task_records(location)
+        self.records = tasks.records
+        self.spans = tasks.spans
+        """Where a packed dataset's shards lie (none otherwise)."""
         self.config = info.config
         self.alpha, self.num_views = info.config.alpha, info.num_views
         self.tie_break = info.config.label_tie_break
         self.full, self.seed, self.search_limit = full, seed, search_limit
-        self.index_rows = _index_rows(location, self.records)
+        self.index_rows = IndexRows(location)
         self.positions = np.asarray(info.view_positions, dtype=np.float64)
         self.report = LabelReport(shards=len(self.records))
         self._lock = threading.Lock()
@@ -239,27 +244,60 @@ class IndexRow:
     """(visible size, best view, views sharing its gain, that gain) in a version-3 index."""
 
 
-def _index_rows(location: Location, records: Sequence[CommitRecord]) -> dict[tuple[str, int], IndexRow]:
-    """(shard, row) -> what the index holds; empty when the index cannot be read (`storage.validate`
-    says why)."""
-    try:
-        index = load_index(location, records)
-    except Exception:
-        return {}
-    shards, rows, names, labels = (index.column(c).to_pylist() for c in ("shard", "row", "sample_id", "label"))
-    if "label_support" in index.column_names:
-        found = zip(*(index.column(c).to_pylist() for c in AMBIGUITY_COLUMNS), strict=True)
-        ambiguity: list[tuple[int, int, bool] | None] = [(int(a), int(b), bool(c)) for a, b, c in found]
-    else:
-        ambiguity = [None] * len(names)
-    next_view: list[tuple[int, int, int, int] | None] = [None] * len(names)
-    if "best_view" in index.column_names:
-        found_views = zip(*(index.column(c).to_pylist() for c in NEXT_VIEW_COLUMNS), strict=True)
-        next_view = [(int(a), int(b), int(c), int(d)) for a, b, c, d in found_views]
-    return {
-        (s, r): IndexRow(n, int(label), a, v)
-        for s, r, n, label, a, v in zip(shards, rows, names, labels, ambiguity, next_view, strict=True)
-    }
+class IndexRows:
+    """(shard, row) -> what the index holds (`IndexRow`), built one shard at a time from the index
+    columns as the checks reach it: the whole index as Python objects would take gigabytes at millions
+    of samples. Empty when the index cannot be read (`storage.validate` says why)."""
+
+    def __init__(self, location: Location) -> None:
+        self._lock = threading.Lock()
+        self._built: dict[str, dict[int, IndexRow]] = {}
+        try:
+            samples = open_index(location)
+        except Exception:
+            self._samples: SampleIndex | None = None
+            return
+        self._samples = samples
+        codes = samples.codes.astype(np.int64)
+        self._order = np.argsort(codes, kind="stable")
+        self._bounds = np.searchsorted(codes[self._order], np.arange(len(samples.shards) + 1))
+        self._code = {shard: k for k, shard in enumerate(samples.shards)}
+        names = samples.column_names
+        wanted = ["label", *(AMBIGUITY_COLUMNS if "label_support" in names else ())]
+        wanted += list(NEXT_VIEW_COLUMNS) if "best_view" in names else []
+        self._columns = {name: numpy_of(samples.column(name)) for name in wanted}
+        self._ids = samples.column("sample_id")
+
+    def get(self, key: tuple[str, int]) -> IndexRow | None:
+        shard, row = key
+        with self._lock:
+            found = self._built.get(shard)
+            if found is None:
+                found = self._built[shard] = self._shard_rows(shard)
+                if len(self._built) > 64:  # the checks walk shard by shard: keep the last few
+                    self._built.pop(next(iter(self._built)))
+        return found.get(row)
+
+    def _shard_rows(self, shard: str) -> dict[int, IndexRow]:
+        code = self._code.get(shard) if self._samples is not None else None
+        if self._samples is None or code is None:
+            return {}
+        positions = self._order[self._bounds[code] : self._bounds[code + 1]]
+        columns = {name: values[positions].tolist() for name, values in self._columns.items()}
+        ids = self._ids.take(pa.array(positions)).to_pylist()
+        ambiguity = zip(*(columns[c] for c in AMBIGUITY_COLUMNS), strict=True) if "label_support" in columns else None
+        views = zip(*(columns[c] for c in NEXT_VIEW_COLUMNS), strict=True) if "best_view" in columns else None
+        found = {}
+        for row, name, label in zip(self._samples.rows[positions].tolist(), ids, columns["label"], strict=True):
+            a = next(ambiguity) if ambiguity is not None else None
+            v = next(views) if views is not None else None
+            found[int(row)] = IndexRow(
+                name,
+                int(label),
+                (int(a[0]), int(a[1]), bool(a[2])) if a is not None else None,
+                (int(v[0]), int(v[1]), int(v[2]), int(v[3])) if v is not None else None,
+            )
+        return found
 
 
 def _why(error: Exception) -> str:
@@ -283,7 +321,7 @@ def _check_reader(
     num_views: int,
     full: bool,
     rng: np.random.Generator,
-    index_rows: dict[tuple[str, int], IndexRow],
+    index_rows: IndexRows,
     search_limit: int,
     tie_break: setcover.TieBreak = "index",
     config: GenerationConfig | None = None,

@@ -1,7 +1,8 @@
 """What a dataset holds, task by task (``shards ls``) and sample by sample (``shards show``).
 
-Everything is read from the dataset URL alone: commit records and the index say what was written,
-failure records say what is missing and why, and one listing of ``shards/`` gives the bytes on disk.
+Everything is read from the dataset URL alone: the manifest (or the commit records) and the index say
+what was written, failure records say what is missing and why, and the records' sizes (or, for
+records written before they kept them, one listing of ``shards/``) give the bytes on disk.
 """
 
 from __future__ import annotations
@@ -11,10 +12,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.compute as pc
 
 from datagen.errors import InvalidArgument
-from storage import Dataset, LabelAmbiguity, NextView, committed_tasks, stored_bytes
+from storage import Dataset, LabelAmbiguity, NextView, stored_bytes
 from storage.samples import mask_bits
 
 COMMITTED = "committed"
@@ -54,8 +56,11 @@ def rotation_of(task_id: str) -> int | None:
 
 def list_tasks(dataset: Dataset) -> list[TaskRow]:
     """Every committed task and every failed one, sorted by object name, rotation and task id."""
-    commits = committed_tasks(dataset.location)
-    sizes = stored_bytes(dataset.location, commits)
+    commits = dataset.task_records()
+    if all(record.stored_bytes is not None for record in commits):
+        sizes = {record.task_id: int(record.stored_bytes or 0) for record in commits}
+    else:  # records from before the one-file layout: one listing of shards/ says
+        sizes = stored_bytes(dataset.location, commits)
     per_task = _index_totals(dataset)
     rows = []
     for record in commits:
@@ -104,7 +109,7 @@ def _index_totals(dataset: Dataset) -> dict[str, dict[str, Any]]:
     columns = ["task_id", "object_name", "rotation", "num_points"]
     # use_threads=False: pyarrow's thread pool must not outlive the command (it aborts at exit).
     grouped = (
-        dataset.index.select(columns)
+        pa.table({name: dataset.column(name) for name in columns})
         .group_by(["task_id", "object_name", "rotation"], use_threads=False)
         .aggregate([("num_points", "sum"), ("num_points", "count")])
     )
@@ -153,7 +158,7 @@ def find_sample(dataset: Dataset, text: str) -> int:
                 f"sample {row} out of range: {dataset.url} holds {count} samples (rows 0 to {count - 1})"
             )
         return row
-    found = pc.index(dataset.index.column("sample_id"), text).as_py()
+    found = pc.index(dataset.column("sample_id"), text).as_py()
     if found < 0:
         raise InvalidArgument(
             f"no sample {text!r} in {dataset.url}; give a row number (0 to {count - 1}) or a sample id"
@@ -167,7 +172,7 @@ def describe_sample(dataset: Dataset, row: int) -> SampleDetails:
     width = dataset.num_views
     return SampleDetails(
         row=row,
-        metadata=dataset.index.slice(row, 1).to_pylist()[0],
+        metadata=dataset.index_row(row),
         input_views=tuple(np.flatnonzero(mask_bits(view_state, width)).tolist()),
         label_views=tuple(np.flatnonzero(mask_bits(label, width)).tolist()),
         num_views=width,

@@ -12,6 +12,7 @@ import json
 import os
 import shutil
 import uuid
+from contextlib import AbstractContextManager
 from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -22,6 +23,7 @@ import pyarrow.parquet as pq
 import pytest
 import zarr
 from click.testing import Result
+from support import storage as fx
 from support.engine import assert_same_samples
 from support.setcover_oracle import oracle_cover, oracle_minimal
 from support.shards import (
@@ -88,8 +90,9 @@ def first(root: Path) -> CommitRecord:
     return committed_tasks(open_location(str(root)))[0]
 
 
-def group(root: Path, record: CommitRecord) -> zarr.Group:
-    return zarr.open_group(str(root / record.shard), mode="r+")
+def group(root: Path, record: CommitRecord) -> AbstractContextManager[zarr.Group]:
+    """The task's shard group through zarr, written back when the block ends (`fx.shard_group`)."""
+    return fx.shard_group(root / record.shard, mode="r+")
 
 
 def validate_all(root: Path | str) -> Result:
@@ -106,21 +109,21 @@ def rewrite_parquet(path: Path, column: str, values: list) -> None:  # type: ign
 
 
 def stored_masks(root: Path, record: CommitRecord) -> np.ndarray:
-    return np.asarray(group(root, record)[MASKS][...])
+    return fx.stored_array(root / record.shard, MASKS)
 
 
 def write_label(root: Path, record: CommitRecord, row: int, label: int, index: bool = True) -> None:
     """Replace one stored label in the shard and, unless told otherwise, in the index (label and size)."""
-    g = group(root, record)
-    masks = np.asarray(g[MASKS][...])
-    masks[row, LABEL_COLUMN] = label
-    g[MASKS][...] = masks
+    with group(root, record) as g:
+        masks = np.asarray(g[MASKS][...])
+        masks[row, LABEL_COLUMN] = label
+        g[MASKS][...] = masks
     if index:
-        table = pq.read_table(root / "index.parquet")
+        table = pq.read_table(fx.samples_table(root))
         labels, sizes = table.column("label").to_pylist(), table.column("label_size").to_pylist()
         labels[row], sizes[row] = label, label.bit_count()
-        rewrite_parquet(root / "index.parquet", "label", labels)
-        rewrite_parquet(root / "index.parquet", "label_size", sizes)
+        rewrite_parquet(fx.samples_table(root), "label", labels)
+        rewrite_parquet(fx.samples_table(root), "label_size", sizes)
 
 
 def per_view_keys(root: Path | str, record: CommitRecord, name: str) -> list[np.ndarray]:
@@ -179,28 +182,28 @@ def test_validate_of_a_folder_that_is_no_dataset(tmp_path: Path) -> None:
 @pytest.mark.parametrize("name", ["points_keys", "observed_keys", "refined_keys"])
 def test_key_array_rewritten_shorter(ds: Path, name: str) -> None:
     record = first(ds)
-    array = group(ds, record)[name]
-    assert isinstance(array, zarr.Array)
-    array.resize((array.shape[0] - 100, 3))
+    with group(ds, record) as g:
+        array = g[name]
+        assert isinstance(array, zarr.Array)
+        array.resize((array.shape[0] - 100, 3))
     result = validate_all(ds)
     assert lines_with(result, record.shard, name.replace("_keys", "_offsets"), "truncated")
 
 
 def test_gt_keys_with_the_wrong_shape(ds: Path) -> None:
     record = first(ds)
-    g = group(ds, record)
-    gt = np.asarray(g["gt_keys"][...])
-    del g["gt_keys"]
-    g.create_array("gt_keys", data=gt[:, :2].copy())
+    with group(ds, record) as g:
+        gt = np.asarray(g["gt_keys"][...])
+        del g["gt_keys"]
+        g.create_array("gt_keys", data=gt[:, :2].copy())
     assert lines_with(validate_all(ds), record.shard, "gt_keys", "expected (G, 3) int16")
 
 
 @pytest.mark.parametrize("name", ["points_keys", "observed_keys", "refined_keys", "visible_keys"])
 def test_chunk_file_truncated_on_disk(ds: Path, name: str) -> None:
     record = first(ds)
-    assert group(ds, record)[name].shape[0] > KEY_CHUNK_ROWS  # stored as a zarr shard with a checksummed index
-    chunk = ds / record.shard / name / "c" / "0" / "0"
-    os.truncate(chunk, chunk.stat().st_size // 2)
+    assert fx.stored_array(ds / record.shard, name).shape[0] > KEY_CHUNK_ROWS  # a zarr shard, its index checksummed
+    fx.truncate_member(ds / record.shard, f"{name}/c/0/0")
     result = validate_all(ds)
     assert lines_with(result, record.shard, "truncated or corrupt")
     assert not lines_with(result, "cannot check labels")  # storage's line says it; the label check stays quiet
@@ -209,17 +212,16 @@ def test_chunk_file_truncated_on_disk(ds: Path, name: str) -> None:
 @pytest.mark.parametrize("damage", ["empty", "deleted"])
 def test_chunk_file_emptied_or_deleted(ds: Path, damage: str) -> None:
     record = first(ds)
-    chunk = ds / record.shard / "points_keys" / "c" / "0" / "0"
     if damage == "empty":
-        os.truncate(chunk, 0)
+        fx.truncate_member(ds / record.shard, "points_keys/c/0/0", keep=0)
     else:
-        chunk.unlink()
+        fx.zip_without(ds / record.shard, "points_keys/c/0/0")
     assert lines_with(validate_all(ds), record.shard, "points_keys")
 
 
 def test_shard_group_missing(ds: Path) -> None:
     record = first(ds)
-    shutil.rmtree(ds / record.shard)
+    (ds / record.shard).unlink()
     result = validate_all(ds)
     assert lines_with(result, record.shard, "cannot open shard")
     assert not lines_with(result, "cannot check labels")
@@ -228,44 +230,44 @@ def test_shard_group_missing(ds: Path) -> None:
 @pytest.mark.parametrize("name", ["points_offsets", "observed_offsets", "visible_offsets"])
 def test_non_monotone_offsets(ds: Path, name: str) -> None:
     record = first(ds)
-    g = group(ds, record)
-    offsets = np.asarray(g[name][...])
-    offsets[2], offsets[3] = offsets[3], offsets[2]
-    assert offsets[3] < offsets[2]
-    g[name][...] = offsets
+    with group(ds, record) as g:
+        offsets = np.asarray(g[name][...])
+        offsets[2], offsets[3] = offsets[3], offsets[2]
+        assert offsets[3] < offsets[2]
+        g[name][...] = offsets
     assert lines_with(validate_all(ds), f"{record.shard} row 2:", name, "not monotone")
 
 
 def test_offsets_not_ending_at_the_key_count(ds: Path) -> None:
     record = first(ds)
-    g = group(ds, record)
-    offsets = np.asarray(g["points_offsets"][...])
-    offsets[-1] += 5
-    g["points_offsets"][...] = offsets
+    with group(ds, record) as g:
+        offsets = np.asarray(g["points_offsets"][...])
+        offsets[-1] += 5
+        g["points_offsets"][...] = offsets
     assert lines_with(validate_all(ds), record.shard, "points_offsets", "not monotone")
 
 
 def test_index_row_pointing_to_an_uncommitted_shard(ds: Path) -> None:
     record = first(ds)
     orphan = shard_path(record.task_id, "orphan")
-    shutil.copytree(ds / record.shard, ds / orphan)  # on disk, but no commit record names it
-    values = pq.read_table(ds / "index.parquet").column("shard").to_pylist()
-    rewrite_parquet(ds / "index.parquet", "shard", [orphan, *values[1:]])
+    (ds / orphan).write_bytes((ds / record.shard).read_bytes())  # on disk, but no commit record names it
+    values = pq.read_table(fx.samples_table(ds)).column("shard").to_pylist()
+    rewrite_parquet(fx.samples_table(ds), "shard", [orphan, *values[1:]])
     assert lines_with(validate_all(ds), "index row 0:", orphan, "no commit record")
 
 
 def test_dangling_index_row(ds: Path) -> None:
-    values = pq.read_table(ds / "index.parquet").column("shard").to_pylist()
+    values = pq.read_table(fx.samples_table(ds)).column("shard").to_pylist()
     values[5] = "shards/nowhere/a1.zarr"
-    rewrite_parquet(ds / "index.parquet", "shard", values)
+    rewrite_parquet(fx.samples_table(ds), "shard", values)
     assert lines_with(validate_all(ds), "index row 5:", "shards/nowhere/a1.zarr")
 
 
 def test_index_row_out_of_range(ds: Path) -> None:
     record = first(ds)
-    rows = pq.read_table(ds / "index.parquet").column("row").to_pylist()
+    rows = pq.read_table(fx.samples_table(ds)).column("row").to_pylist()
     rows[3] = record.num_samples + 7
-    rewrite_parquet(ds / "index.parquet", "row", rows)
+    rewrite_parquet(fx.samples_table(ds), "row", rows)
     assert lines_with(validate_all(ds), "index row 3:", f"row {record.num_samples + 7}", record.shard, "outside")
 
 
@@ -280,7 +282,8 @@ def test_duplicate_samples(ds: Path) -> None:
     record = first(ds)
     copy_task = "0000000000000000-r9"
     copy_shard, copy_fragment = shard_path(copy_task, "a1"), fragment_path(copy_task, "a1")
-    shutil.copytree(ds / record.shard, ds / copy_shard)
+    (ds / copy_shard).parent.mkdir(parents=True)
+    shutil.copy(ds / record.shard, ds / copy_shard)
     shutil.copy(ds / record.index_fragment, ds / copy_fragment)
     rewrite_parquet(ds / copy_fragment, "shard", [copy_shard] * record.num_samples)
     copied = record.model_copy(update={"task_id": copy_task, "shard": copy_shard, "index_fragment": copy_fragment})
@@ -306,12 +309,12 @@ def test_mask_bits_beyond_the_view_count(ds: Path, column: str) -> None:
     record, row = first(ds), 4
     masks = stored_masks(ds, record)
     n = info_of(str(ds)).num_views
-    g = group(ds, record)
     if column == "label":
         masks[row, LABEL_COLUMN] |= np.uint64(1 << (n + 3))
     else:
         masks[row, VIEW_STATE_COLUMN] |= np.uint64(1 << 63)
-    g[MASKS][...] = masks
+    with group(ds, record) as g:
+        g[MASKS][...] = masks
     assert lines_with(validate_all(ds), f"{record.shard} row {row}:", f"beyond the {n} views")
 
 
@@ -350,11 +353,11 @@ def test_commit_record_disagreeing_with_the_shard(ds: Path) -> None:
 
 
 def test_deleted_commit_record_of_a_finalised_dataset(ds: Path) -> None:
-    """Before: "ok: 5 tasks sound" while index.json and index.parquet still listed the task."""
+    """Before: "ok: 5 tasks sound" while the finalised index still listed the task."""
     record = first(ds)
     os.remove(ds / commit_path(record.task_id))
     result = validate_all(ds)
-    assert lines_with(result, "index.json", record.task_id, "no commit record")
+    assert lines_with(result, "index/manifest.json", record.task_id, "no commit record")
     with pytest.raises(StorageError, match=record.task_id):
         open_dataset(str(ds))
 
@@ -435,10 +438,10 @@ def test_index_label_disagreeing_with_the_shard(ds: Path) -> None:
     record = first(ds)
     alpha = info_of(str(ds)).config.alpha
     row, label, other = other_minimum_cover(ds, record, alpha)
-    table = pq.read_table(ds / "index.parquet")
+    table = pq.read_table(fx.samples_table(ds))
     labels = table.column("label").to_pylist()
     labels[row] = other
-    rewrite_parquet(ds / "index.parquet", "label", labels)
+    rewrite_parquet(fx.samples_table(ds), "label", labels)
     result = validate_all(ds)
     case = int(stored_masks(ds, record)[row, VIEW_STATE_COLUMN])
     assert problem_lines(result) == [
@@ -531,13 +534,11 @@ def test_relabel_brings_an_older_dataset_to_a_fresh_generation(tmp_path: Path, v
 def test_validate_all_recounts_the_minimum_covers(tmp_path: Path) -> None:
     """`--all` enumerates every view set of the label's size itself: a wrong count or support in the
     index, or a listed cover dropped from an exact list, is a line naming the sample."""
-    from support import storage as fx
-
     from schemas.index import INDEX_SCHEMA
 
     root = tmp_path / "v2"
     fx.build_dataset(str(root), finalise_index=True)
-    table = pq.read_table(root / "index.parquet")
+    table = pq.read_table(fx.samples_table(root))
     counts = table.column("min_covers").to_numpy().copy()
     support = table.column("label_support").to_numpy().copy()
     row = int(np.flatnonzero(counts > 2)[0])
@@ -551,7 +552,7 @@ def test_validate_all_recounts_the_minimum_covers(tmp_path: Path) -> None:
     support[other] |= np.uint64(1 << missing)
     for name, values in (("min_covers", counts), ("label_support", support)):
         table = table.set_column(table.schema.get_field_index(name), name, pa.array(values))
-    pq.write_table(table.cast(INDEX_SCHEMA), root / "index.parquet")
+    pq.write_table(table.cast(INDEX_SCHEMA), fx.samples_table(root))
     report = label_check.check_labels(str(root), full=True)
     lines = [p.line for p in report.problems]
     names = table.column("sample_id").to_pylist()

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from matplotlib import colormaps
 from PIL import Image
+from support import storage as fx
 from support.shards import EngineDataset, engine_dataset  # noqa: F401
 from typer.testing import CliRunner
 
@@ -247,16 +248,16 @@ def test_a_damaged_dataset_is_one_error_line_naming_the_file(
     a truncated index.parquet with pyarrow's bare ArrowInvalid."""
     damaged = Path(shutil.copytree(engine_dataset.url, tmp_path / "chunk"))
     shard = json.loads(sorted((damaged / "commits").glob("*.json"))[0].read_text())["shard"]
-    (damaged / shard / "points_keys" / "c" / "0" / "0").unlink()
+    fx.zip_without(damaged / shard, "points_keys/c/0/0")
     result = runner.invoke(app, ["shards", "show", str(damaged), "0"])
     assert_one_error_line(result, f"{shard}: missing chunk files: points_keys")
     assert f"datagen shards validate {damaged}" in result.stderr
     truncated = Path(shutil.copytree(engine_dataset.url, tmp_path / "index"))
-    index = truncated / "index.parquet"
+    index = fx.samples_table(truncated)
     index.write_bytes(index.read_bytes()[: index.stat().st_size // 2])
     for command in ("ls", "stats"):
         result = runner.invoke(app, ["shards", command, str(truncated)])
-        assert_one_error_line(result, f"{truncated}: index.parquet: unreadable Parquet")
+        assert_one_error_line(result, f"{truncated}: {index.relative_to(truncated)}: unreadable Parquet")
         assert f"datagen shards validate {truncated}" in result.stderr
 
 

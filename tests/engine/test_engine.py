@@ -117,7 +117,7 @@ def test_builtins_end_to_end(builtin_job) -> None:
     assert all(len(files) == 2 for files in shard_dirs(job.out).values())
     assert read_failures(open_location(job.out)) == []
     # the finalised index covers every commit (readers need not merge fragments)
-    assert open_location(job.out).exists("index.parquet")
+    assert open_location(job.out).exists("index/manifest.json")
 
 
 def test_builtins_hold_exactly_the_planned_cases(builtin_job, inputs: Path) -> None:

@@ -20,4 +20,4 @@ def _layout(version: int) -> Callable[[pytest.TempPathFactory], Path]:
     return built
 
 
-version_1, version_2, version_3, version_4 = (_layout(v) for v in (1, 2, 3, 4))
+version_1, version_2, version_3, version_4, version_5 = (_layout(v) for v in (1, 2, 3, 4, 5))

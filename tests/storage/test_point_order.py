@@ -36,7 +36,7 @@ from storage.writer import shard_path
 
 SEED = 5
 FIRST = sorted(fx.task_ids())[0]
-SHARD = shard_path(FIRST, fx.ATTEMPT)
+SHARD = shard_path(FIRST, fx.ATTEMPT, 4)
 
 
 def window_truth(cloud: npt.NDArray[np.int16], num_points: int, seed: int, epoch: int, row: int) -> npt.NDArray:

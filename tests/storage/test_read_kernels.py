@@ -2,7 +2,7 @@
 `storage.seeding` (numpy's SeedSequence -> PCG64 seeding on arrays), `samples.resample_many_keys`,
 `samples.many_cloud_positions` (version 4's windows and whole-cloud draws, seeded together),
 `covers.listed_marginals`, `samples.key_centres` into ``out``, the local listing of a shard
-(`shards.local_files`) and its attributes read without zarr (`ShardReader`).
+(`group_files.local_files`) and its attributes read without zarr (`ShardReader`).
 """
 
 from __future__ import annotations
@@ -19,9 +19,9 @@ from support import storage as fx
 
 from storage import ShardReader, StorageError, open_dataset
 from storage.covers import cover_marginals, listed_marginals
+from storage.group_files import local_files
 from storage.samples import cloud_positions, key_centres, many_cloud_positions, resample_keys, resample_many_keys
 from storage.seeding import StreamGenerator, pcg64_states
-from storage.shards import local_files
 from storage.writer import shard_path
 
 
@@ -121,19 +121,27 @@ def test_local_files_are_fsspecs_listing(tmp_path: Path) -> None:
     assert local_files(str(tmp_path / "missing")) == []
 
 
-def test_shard_attributes_without_zarr_are_zarrs(tmp_path: Path) -> None:
+@pytest.mark.parametrize("layout", [4, 5])
+def test_shard_attributes_without_zarr_are_zarrs(tmp_path: Path, layout: int) -> None:
+    """Both layouts: a folder of files (4) and one ZIP (5)."""
     root = tmp_path / "ds"
-    fx.build_dataset(str(root), finalise_index=True)
+    fx.build_dataset(str(root), finalise_index=True, schema_version=layout)
     dataset = open_dataset(str(root))
-    relative = shard_path(sorted(fx.task_ids())[0], fx.ATTEMPT)
+    relative = shard_path(sorted(fx.task_ids())[0], fx.ATTEMPT, layout)
     reader = ShardReader(dataset.location, relative)
     assert reader._zarr_group is None  # read and verified without opening the group through zarr
     through_zarr = type(reader.attributes).model_validate(dict(reader._group.attrs))
     assert reader.attributes.model_dump() == through_zarr.model_dump()
-    (root / relative / "zarr.json").write_text("{not json")
+    if layout == 4:
+        (root / relative / "zarr.json").write_text("{not json")
+    else:
+        fx.corrupt_member(root / relative, "zarr.json")
     with pytest.raises(StorageError, match=r"unreadable group metadata zarr\.json"):
         ShardReader(dataset.location, relative)
-    (root / relative / "zarr.json").unlink()
+    if layout == 4:
+        (root / relative / "zarr.json").unlink()
+    else:
+        (root / relative).unlink()
     with pytest.raises(StorageError, match="the shard group is missing"):
         ShardReader(dataset.location, relative, verify=False)
 

@@ -20,6 +20,7 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
@@ -34,7 +35,10 @@ from storage.validate import validate
 from storage.writer import commit_path, failure_path, fragment_path, read_failures, shard_path, write_failure
 
 FIRST, SECOND = sorted(fx.task_ids())
-SHARD = shard_path(FIRST, fx.ATTEMPT)
+FOLDER_LAYOUT = 4
+"""A layout storing each array and chunk as a file of its own: the damages of one file of a shard."""
+SHARD = shard_path(FIRST, fx.ATTEMPT, FOLDER_LAYOUT)
+ZIP_SHARD = shard_path(FIRST, fx.ATTEMPT)
 FRAGMENT = fragment_path(FIRST, fx.ATTEMPT)
 FIX = "datagen shards validate"
 
@@ -49,6 +53,19 @@ def clean(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture
 def ds(clean: Path, tmp_path: Path) -> Path:
     return fx.copy_dataset(clean, tmp_path / "ds")
+
+
+@pytest.fixture(scope="module")
+def clean_folders(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("integrity") / "folders"
+    fx.build_dataset(str(root), finalise_index=True, schema_version=FOLDER_LAYOUT)
+    return root
+
+
+@pytest.fixture
+def fds(clean_folders: Path, tmp_path: Path) -> Path:
+    """A copy of the dataset in the folder layout."""
+    return fx.copy_dataset(clean_folders, tmp_path / "fds")
 
 
 def assert_one_line(error: BaseException, root: Path, *parts: str) -> str:
@@ -154,7 +171,8 @@ SHARD_DAMAGES: dict[str, ShardDamage] = {
 
 
 @pytest.mark.parametrize("case", list(SHARD_DAMAGES))
-def test_damaged_shard_is_one_line_naming_it(ds: Path, case: str) -> None:
+def test_damaged_shard_is_one_line_naming_it(fds: Path, case: str) -> None:
+    ds = fds
     damage = SHARD_DAMAGES[case]
     damage.damage(ds)
     dataset = open_dataset(str(ds))  # the index is intact: opening works
@@ -167,11 +185,35 @@ def test_damaged_shard_is_one_line_naming_it(ds: Path, case: str) -> None:
     assert_validate_names(ds, *damage.validate_names)
 
 
-def test_missing_chunk_file_stops_iteration_and_the_torch_dataset(ds: Path) -> None:
+ZIP_DAMAGES: dict[str, tuple[Callable[[Path], None], tuple[str, ...]]] = {
+    "deleted": (lambda p: p.unlink(), ("missing",)),
+    "emptied": (lambda p: os.truncate(p, 0), ("not a readable ZIP",)),
+    "truncated": (lambda p: os.truncate(p, p.stat().st_size // 2), ("not a readable ZIP",)),
+    "member lost": (lambda p: fx.zip_without(p, "points_keys/c/0/0"), ("points_keys", "truncated")),
+    "member corrupt": (lambda p: fx.corrupt_member(p, "masks/c/0/0"), ("masks", "truncated or corrupt")),
+    "group metadata corrupt": (lambda p: fx.corrupt_member(p, "zarr.json"), ("zarr.json",)),
+}
+"""Damages of a one-file shard (layout 5) and what the reader's line says beside the shard's path."""
+
+
+@pytest.mark.parametrize("case", sorted(ZIP_DAMAGES))
+def test_damaged_shard_file_is_one_line_naming_it(ds: Path, case: str) -> None:
+    damage, names = ZIP_DAMAGES[case]
+    damage(ds / ZIP_SHARD)
+    dataset = open_dataset(str(ds))
+    with pytest.raises(StorageError) as caught:
+        dataset[rows_of(dataset, FIRST)[0]]
+    assert_one_line(caught.value, ds, ZIP_SHARD, *names, f"datagen shards repair {ds}")
+    assert len(dataset[rows_of(dataset, SECOND)[0]]["points"]) > 0  # the intact task still reads
+    assert_validate_names(ds, ZIP_SHARD)
+
+
+def test_missing_chunk_file_stops_iteration_and_the_torch_dataset(fds: Path) -> None:
     from torch.utils.data import DataLoader
 
     from storage.torch import OSVPDataset
 
+    ds = fds
     delete_chunk(ds, "points_keys")
     dataset = open_dataset(str(ds))
     with pytest.raises(StorageError) as caught:
@@ -208,55 +250,85 @@ def test_each_shard_is_listed_once_per_reader(ds: Path, monkeypatch: pytest.Monk
     for i in order:
         dataset[i]
     dataset.select(order)[0]
-    assert sorted(verified) == sorted({SHARD, shard_path(SECOND, fx.ATTEMPT)})
+    assert sorted(verified) == sorted({ZIP_SHARD, shard_path(SECOND, fx.ATTEMPT)})
 
 
 # -- point 3: the finalised index agrees with the commit records -----------------------------------------
+#
+# Two finalised indexes: the manifest `finalise` writes (``index/manifest.json`` and its segments), and
+# the one earlier code wrote (``index.json`` and ``index.parquet``; `fx.finalise_as_before`), which
+# datasets made then still hold and readers still follow.
+
+MANIFEST = "index/manifest.json"
 
 
-def test_deleted_commit_record_refuses_the_finalised_index(ds: Path) -> None:
+@pytest.fixture
+def lds(ds: Path) -> Path:
+    """The dataset as an earlier datagen finalised it."""
+    fx.finalise_as_before(open_location(str(ds)))
+    return ds
+
+
+def segment(root: Path) -> tuple[Path, Path]:
+    """The (tasks, samples) tables of the dataset's one segment."""
+    (only,) = json.loads((root / MANIFEST).read_text())["segments"]
+    return root / only["tasks"], root / only["samples"]
+
+
+@pytest.mark.parametrize("index", ["manifest", "before the manifest"])
+def test_deleted_commit_record_refuses_the_finalised_index(ds: Path, index: str) -> None:
     from storage.torch import OSVPDataset
 
+    named = MANIFEST
+    if index != "manifest":
+        fx.finalise_as_before(open_location(str(ds)))
+        named = "index.json"
     os.remove(ds / commit_path(FIRST))
     for open_it in (open_dataset, OSVPDataset):
         with pytest.raises(StorageError) as caught:
             open_it(str(ds))
-        assert_one_line(caught.value, ds, "index.json", FIRST, commit_path(FIRST))
+        assert_one_line(caught.value, ds, named, FIRST, commit_path(FIRST))
     found = validate(str(ds), full=True)
-    assert [line for line in found if FIRST in line and "index.json" in line and "no commit record" in line]
+    assert [line for line in found if FIRST in line and named in line and "no commit record" in line]
 
 
 def test_deleted_commit_record_of_a_dataset_never_finalised_still_reads(ds: Path) -> None:
     """No finalised index (a job still running): the commit records are all there is to follow."""
-    os.remove(ds / "index.json")
-    os.remove(ds / "index.parquet")
+    shutil.rmtree(ds / "index")
     os.remove(ds / commit_path(FIRST))
     dataset = open_dataset(str(ds))
     assert set(dataset.index.column("task_id").to_pylist()) == {SECOND}
     assert validate(str(ds), full=True) == []
 
 
-def test_task_committed_after_finalise_reads_and_validate_says_the_index_is_stale(tmp_path: Path) -> None:
+@pytest.mark.parametrize("index", ["manifest", "before the manifest"])
+def test_task_committed_after_finalise_reads_and_validate_says_the_index_is_stale(tmp_path: Path, index: str) -> None:
     first, second = (next(p for p in fx.payloads() if p.attributes.task_id == t) for t in (FIRST, SECOND))
     root = tmp_path / "grown"
     location = fx.build_dataset(str(root), task_payloads=[first], finalise_index=True)
+    if index != "manifest":
+        fx.finalise_as_before(location)
     fx.build_dataset(str(root), task_payloads=[second])  # a resumed job, not finalised yet
     assert len(open_dataset(str(root))) == fx.total_samples()
     found = validate(str(root), full=True)
     assert len(found) == 1 and commit_path(SECOND) in found[0] and "not in the finalised index" in found[0]
     finalise(location)
     assert validate(str(root), full=True) == []
+    assert sorted(open_dataset(str(root)).index.column("task_id").to_pylist()) == sorted(
+        open_dataset(str(root)).select(range(fx.total_samples())).index.column("task_id").to_pylist()
+    )
 
 
-def drop_index_rows(root: Path, task_id: str, keep: int) -> None:
-    table = pq.read_table(root / "index.parquet")
+def drop_index_rows(path: Path, task_id: str, keep: int) -> None:
+    table = pq.read_table(path)
     mask = pc.equal(table.column("task_id"), task_id).to_numpy(zero_copy_only=False)
     rows = np.flatnonzero(~mask).tolist() + np.flatnonzero(mask)[:keep].tolist()
-    pq.write_table(table.take(sorted(rows)), root / "index.parquet")
+    pq.write_table(table.take(sorted(rows)), path)
 
 
-def test_index_rows_differing_from_the_commit_record_are_refused(ds: Path) -> None:
-    drop_index_rows(ds, FIRST, keep=3)
+def test_index_rows_differing_from_the_commit_record_are_refused(lds: Path) -> None:
+    ds = lds
+    drop_index_rows(ds / "index.parquet", FIRST, keep=3)
     with pytest.raises(StorageError) as caught:
         open_dataset(str(ds))
     message = assert_one_line(caught.value, ds, "index.parquet", FIRST)
@@ -265,7 +337,21 @@ def test_index_rows_differing_from_the_commit_record_are_refused(ds: Path) -> No
     assert [line for line in found if line.startswith("index.parquet:") and FIRST in line and "has 3 rows" in line]
 
 
-def test_index_naming_another_attempt_is_refused(ds: Path) -> None:
+def test_a_samples_table_missing_rows_is_refused(ds: Path) -> None:
+    """A reader checks each samples table's row count (its footer) against the manifest; validate names
+    the task whose rows are missing."""
+    _, samples = segment(ds)
+    drop_index_rows(samples, FIRST, keep=3)
+    relative = str(samples.relative_to(ds))
+    with pytest.raises(StorageError) as caught:
+        open_dataset(str(ds))
+    assert_one_line(caught.value, ds, relative, MANIFEST, "rows")
+    found = validate(str(ds), full=True)
+    assert [line for line in found if line.startswith(f"{relative}:") and FIRST in line and "has 3 rows" in line]
+
+
+def test_index_naming_another_attempt_is_refused(lds: Path) -> None:
+    ds = lds
     coverage = json.loads((ds / "index.json").read_text())
     coverage[FIRST] = "someone-else"
     (ds / "index.json").write_text(json.dumps(coverage))
@@ -273,6 +359,24 @@ def test_index_naming_another_attempt_is_refused(ds: Path) -> None:
         open_dataset(str(ds))
     assert_one_line(caught.value, ds, "index.json", FIRST, "someone-else")
     assert [line for line in validate(str(ds), full=True) if "index.json" in line and FIRST in line]
+
+
+def test_a_manifest_naming_another_attempt_is_a_validate_problem(ds: Path) -> None:
+    """A reader trusts the manifest's attempts (checking them would read every commit record: a request
+    per task); validate compares each with its record."""
+    tasks, _ = segment(ds)
+    table = pq.read_table(tasks)
+    attempts = [
+        "someone-else" if t == FIRST else a
+        for t, a in zip(*(table.column(c).to_pylist() for c in ("task_id", "attempt_id")), strict=True)
+    ]
+    pq.write_table(
+        table.set_column(table.schema.get_field_index("attempt_id"), "attempt_id", pa.array(attempts)), tasks
+    )
+    assert len(open_dataset(str(ds))) == fx.total_samples()
+    assert [
+        line for line in validate(str(ds), full=True) if MANIFEST in line and FIRST in line and "someone-else" in line
+    ]
 
 
 def test_stale_failure_beside_a_commit_is_a_warning(ds: Path) -> None:
@@ -299,21 +403,34 @@ def truncate(path: Path) -> None:
     os.truncate(path, path.stat().st_size // 2)
 
 
+def unfinalised(root: Path) -> None:
+    shutil.rmtree(root / "index")
+
+
 FILE_DAMAGES: dict[str, tuple[str, Callable[[Path], None]]] = {
-    "truncated index.parquet": ("index.parquet", lambda root: truncate(root / "index.parquet")),
-    "truncated index.json": ("index.json", lambda root: truncate(root / "index.json")),
-    "truncated commit record": (commit_path(FIRST), lambda root: truncate(root / commit_path(FIRST))),
-    "empty commit record": (commit_path(FIRST), lambda root: os.truncate(root / commit_path(FIRST), 0)),
+    "truncated manifest": (MANIFEST, lambda root: truncate(root / MANIFEST)),
+    "truncated tasks table": ("index/tasks-", lambda root: truncate(segment(root)[0])),
+    "truncated samples table": ("index/samples-", lambda root: truncate(segment(root)[1])),
+    "truncated index.parquet": (
+        "index.parquet",
+        lambda root: (fx.finalise_as_before(open_location(str(root))), truncate(root / "index.parquet")),
+    ),
+    "truncated index.json": (
+        "index.json",
+        lambda root: (fx.finalise_as_before(open_location(str(root))), truncate(root / "index.json")),
+    ),
+    "truncated commit record (not finalised)": (
+        commit_path(FIRST),
+        lambda root: (unfinalised(root), truncate(root / commit_path(FIRST))),
+    ),
+    "empty commit record (not finalised)": (
+        commit_path(FIRST),
+        lambda root: (unfinalised(root), os.truncate(root / commit_path(FIRST), 0)),
+    ),
     "truncated dataset.json": ("dataset.json", lambda root: truncate(root / "dataset.json")),
     "missing dataset.json": ("dataset.json", lambda root: os.remove(root / "dataset.json")),
-    "truncated fragment (not finalised)": (
-        FRAGMENT,
-        lambda root: (os.remove(root / "index.json"), truncate(root / FRAGMENT)),
-    ),
-    "missing fragment (not finalised)": (
-        FRAGMENT,
-        lambda root: (os.remove(root / "index.json"), os.remove(root / FRAGMENT)),
-    ),
+    "truncated fragment (not finalised)": (FRAGMENT, lambda root: (unfinalised(root), truncate(root / FRAGMENT))),
+    "missing fragment (not finalised)": (FRAGMENT, lambda root: (unfinalised(root), os.remove(root / FRAGMENT))),
 }
 
 
@@ -326,9 +443,19 @@ def test_damaged_file_is_one_line_naming_it(ds: Path, damage: str) -> None:
     for open_it in (open_dataset, OSVPDataset):
         with pytest.raises(StorageError) as caught:
             open_it(str(ds))
-        assert_one_line(caught.value, ds, f": {relative}: ")
+        assert_one_line(caught.value, ds, f": {relative}")
     found = validate(str(ds), full=True)  # never raises
     assert [line for line in found if relative in line], found
+
+
+def test_a_damaged_commit_record_under_the_manifest_is_a_validate_problem(ds: Path, clean: Path) -> None:
+    """Opening a finalised dataset lists the commit records but reads none (a request per task): the
+    manifest holds what they say, and the samples read as before; validate reads every record."""
+    truncate(ds / commit_path(FIRST))
+    dataset, reference = open_dataset(str(ds)), open_dataset(str(clean))
+    assert dataset.index.equals(reference.index)
+    np.testing.assert_array_equal(dataset[0]["points"], reference[0]["points"])
+    assert [line for line in validate(str(ds), full=True) if commit_path(FIRST) in line]
 
 
 def test_unparsable_failure_record_is_named(ds: Path) -> None:
@@ -347,19 +474,30 @@ LEFTOVERS = (
     "index.parquet.tmp-0123456789abcdef0123456789abcdef",
     f"{commit_path(FIRST)}.tmp-0123456789abcdef0123456789abcdef",
     f"{FRAGMENT}.tmp-0123456789abcdef0123456789abcdef",
-    PARTIAL,
 )
+LAYOUT_LEFTOVERS = {
+    "folders": PARTIAL,
+    "one file": f"{ZIP_SHARD}.tmp-0123456789abcdef0123456789abcdef",
+}
+"""What an interrupted shard write leaves: zarr's temporary of a chunk file (folder layout), the atomic
+write's temporary of the whole shard file (one-file layout)."""
 
 
-def test_temporary_leftovers_are_warnings_and_never_read(ds: Path, clean: Path) -> None:
+@pytest.mark.parametrize("layout", sorted(LAYOUT_LEFTOVERS))
+def test_temporary_leftovers_are_warnings_and_never_read(
+    ds: Path, clean: Path, fds: Path, clean_folders: Path, layout: str
+) -> None:
     from storage.validate import validate_dataset
 
-    for relative in LEFTOVERS:
+    if layout == "folders":
+        ds, clean = fds, clean_folders
+    leftovers = (*LEFTOVERS, LAYOUT_LEFTOVERS[layout])
+    for relative in leftovers:
         (ds / relative).write_bytes(b"partial")
     found = validate_dataset(str(ds), full=True)
     assert found.problems == []
-    assert len(found.warnings) == len(LEFTOVERS)
-    for relative in LEFTOVERS:
+    assert len(found.warnings) == len(leftovers)
+    for relative in leftovers:
         assert [line for line in found.warnings if line.startswith(f"{relative}: ") and "safe to delete" in line]
     dataset, reference = open_dataset(str(ds)), open_dataset(str(clean))
     assert dataset.index.equals(reference.index)

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import zarr
 from support import storage as fx
 
 from schemas.shard import COVER_ROWS, COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, offsets_array
@@ -23,7 +22,7 @@ def ds(version_2: Path, tmp_path: Path) -> Path:
 
 
 FIRST = sorted(fx.task_ids())[0]
-SHARD = shard_path(FIRST, fx.ATTEMPT)
+SHARD = shard_path(FIRST, fx.ATTEMPT, 2)
 
 
 def samples_by_id() -> dict[str, object]:
@@ -68,8 +67,7 @@ def test_cover_rows_judge_a_view_set_as_the_full_masks_do(version_2: Path) -> No
     """A view set covers U exactly when it meets every cover row that misses S, as a test over every
     key of P_full says."""
     result = next(r for r in fx.task_results() if r.task_id == FIRST)
-    group = zarr.open_group(str(version_2 / SHARD), mode="r")
-    rows = group[COVER_ROWS][...]
+    rows = fx.stored_array(version_2 / SHARD, COVER_ROWS)
     from datagen.pipeline.coverage import coverage_table
 
     full = coverage_table(result.sets.refined, fx.config().alpha).masks
@@ -92,15 +90,12 @@ def test_an_unknown_schema_version_is_one_line(ds: Path) -> None:
     info = json.loads((ds / "dataset.json").read_text())
     info["schema_version"] = 99
     (ds / "dataset.json").write_text(json.dumps(info))
-    with pytest.raises(StorageError, match=r"schema version 99; this reader knows 1, 2, 3, 4: upgrade datagen"):
+    with pytest.raises(StorageError, match=r"schema version 99; this reader knows 1, 2, 3, 4, 5: upgrade datagen"):
         open_dataset(str(ds))
 
 
 def edit(ds: Path, name: str, change) -> None:  # type: ignore[no-untyped-def]
-    group = zarr.open_group(str(ds / SHARD), mode="r+")
-    values = change(group[name][...].copy())
-    del group[name]
-    group.create_array(name, data=values)
+    fx.edit_array(ds / SHARD, name, change)
 
 
 def first_ambiguous_row() -> int:
@@ -113,8 +108,8 @@ def test_a_listed_cover_that_does_not_cover_u(ds: Path) -> None:
     row = first_ambiguous_row()
 
     def drop_a_view(covers: np.ndarray) -> np.ndarray:
-        offsets = zarr.open_group(str(ds / SHARD), mode="r")[offsets_array(COVERS)][...]
-        masks = zarr.open_group(str(ds / SHARD), mode="r")[MASKS][...]
+        offsets = fx.stored_array(ds / SHARD, offsets_array(COVERS))
+        masks = fx.stored_array(ds / SHARD, MASKS)
         last = offsets[row + 1] - 1
         if covers[last] == masks[row, LABEL_COLUMN]:
             last -= 1
@@ -128,9 +123,9 @@ def test_a_listed_cover_that_does_not_cover_u(ds: Path) -> None:
 
 def test_the_label_missing_from_its_covers(ds: Path) -> None:
     row = first_ambiguous_row()
-    label = int(zarr.open_group(str(ds / SHARD), mode="r")[MASKS][row, LABEL_COLUMN])
-    case = int(zarr.open_group(str(ds / SHARD), mode="r")[MASKS][row, VIEW_STATE_COLUMN])
-    offsets = zarr.open_group(str(ds / SHARD), mode="r")[offsets_array(COVERS)][...]
+    label = int(fx.stored_array(ds / SHARD, MASKS)[row, LABEL_COLUMN])
+    case = int(fx.stored_array(ds / SHARD, MASKS)[row, VIEW_STATE_COLUMN])
+    offsets = fx.stored_array(ds / SHARD, offsets_array(COVERS))
 
     def replace_label(covers: np.ndarray) -> np.ndarray:
         listed = covers[offsets[row] : offsets[row + 1]]

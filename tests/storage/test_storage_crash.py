@@ -116,8 +116,17 @@ ZYGOTE = textwrap.dedent(
                 die()
 
             writer_module.write_shard_group = write_shard_group
-        if point == "fragment_tmp":  # fragment bytes in a temporary file, not yet renamed
+        if point == "shard_tmp":  # the shard file's bytes in a temporary file, not yet renamed
             location_module.os = OsProxy(before_replace=die)
+        if point == "fragment_tmp":  # fragment bytes in a temporary file, not yet renamed
+            replaced = [0]
+
+            def second_replace():
+                replaced[0] += 1
+                if replaced[0] == 2:  # the shard file's rename was the first
+                    die()
+
+            location_module.os = OsProxy(before_replace=second_replace)
         if point == "commit_tmp":  # commit record in a temporary file, not yet linked into place
             location_module.os = OsProxy(before_link=die)
         if point in ("fragment", "pause_fragment"):
@@ -331,7 +340,7 @@ def rerun_and_sweep(root: Path, payload: ShardPayload, killed: str, was_committe
     assert all(path.startswith(f"shards/{task_id}/") for path in removed)
     assert shard_path(task_id, expected) not in removed and fragment_path(task_id, expected) not in removed
     left = set(location.listdir(f"shards/{task_id}"))
-    assert left == {f"{expected}.zarr", f"{expected}.parquet"}
+    assert left == {f"{expected}.zarr.zip", f"{expected}.parquet"}
     assert_whole(root, payload, expected)
 
 
@@ -339,6 +348,7 @@ STEPS = {
     # point: whether the task is committed after a kill there
     "start": False,
     "mid_shard": False,
+    "shard_tmp": False,
     "shard": False,
     "fragment_tmp": False,
     "fragment": False,
@@ -353,7 +363,7 @@ def test_kill_at_each_protocol_step(zygote: Zygote, template: Path, payload: Sha
         status = zygote.run(root, f"killed-{point}", point)
         assert status["signal"] == signal.SIGKILL, (point, status)
         files = {str(p.relative_to(root)) for p in root.rglob("*")}
-        if point not in ("start",):
+        if point not in ("start", "mid_shard"):  # a shard's members are put together in memory
             assert any(p.startswith("shards/") for p in files), point  # something was written
         if committed:
             assert_whole(root, payload, f"killed-{point}")
@@ -437,8 +447,8 @@ def test_sweep_orphans_removes_only_uncommitted_attempts_of_committed_tasks(tmp_
 
     removed = sweep_orphans(location)
     assert removed == sorted([shard_path(t1, "old"), fragment_path(t1, "old"), f"shards/{t1}/dead.parquet.tmp-0123"])
-    assert set(location.listdir(f"shards/{t1}")) == {"new.zarr", "new.parquet"}
-    assert set(location.listdir(f"shards/{t2}")) == before_t2 == {"running.zarr", "running.parquet"}
+    assert set(location.listdir(f"shards/{t1}")) == {"new.zarr.zip", "new.parquet"}
+    assert set(location.listdir(f"shards/{t2}")) == before_t2 == {"running.zarr.zip", "running.parquet"}
     assert sweep_orphans(location) == []
     ds = open_dataset(location.url)
     assert len(ds) == first.attributes.num_samples

@@ -19,8 +19,10 @@ from schemas.index import INDEX_SCHEMA, FailureRecord
 from schemas.shard import array_names, point_order
 from schemas.version import SCHEMA_VERSION
 from storage.dataset_info import init_dataset, read_info
+from storage.index import load_index
 from storage.location import StorageError, open_location
-from storage.reader import INDEX_FILE, Dataset, finalise, load_index, open_dataset
+from storage.manifest import MANIFEST_FILE, read_manifest
+from storage.reader import Dataset, finalise, open_dataset
 from storage.shards import ShardReader
 from storage.writer import (
     committed_tasks,
@@ -214,9 +216,10 @@ def test_finalise_then_reopen_gives_the_same_index(backend: str, tmp_path: Path)
         first, second = fx.payloads()
         location = fx.build_dataset(url, task_payloads=[first])
         before = open_dataset(url).index
-        merged = finalise(location)
-        assert location.exists(INDEX_FILE)
-        assert merged.equals(before)
+        finalised = finalise(location)
+        assert location.exists(MANIFEST_FILE) and read_manifest(location) == finalised.manifest
+        assert (finalised.num_tasks, finalised.num_samples) == (1, len(before))
+        assert load_index(location).equals(before)
         reopened = open_dataset(url)
         assert reopened.index.equals(before)
         assert reopened.index.schema.remove_metadata() == INDEX_SCHEMA
@@ -227,7 +230,8 @@ def test_finalise_then_reopen_gives_the_same_index(backend: str, tmp_path: Path)
         assert len(grown) == fx.total_samples()
         assert set(grown.index.column("task_id").to_pylist()) == {first.attributes.task_id, second.attributes.task_id}
         assert grown.index.slice(0, len(before)).equals(before)
-        finalise(location)
+        appended = finalise(location)  # a second segment: the task committed since
+        assert (appended.added_tasks, len(appended.manifest.segments)) == (1, 2)
         assert open_dataset(url).index.equals(grown.index)
         assert load_index(location).equals(grown.index)
     finally:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import uuid
+import zipfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -227,20 +228,22 @@ def test_whole_arrays_are_zarrs_arrays(many: Path) -> None:
     for relative in sorted(set(dataset.index.column("shard").to_pylist()))[:2]:
         reader = ShardReader(dataset.location, relative)
         for name in array_names(dataset.info.schema_version):
-            decoded = _decode_whole(dataset.location, f"{relative}/{name}")
+            decoded = _decode_whole(reader.files, name)
             assert decoded is not None, name
-            stored = reader.array(name)
+            with fx.shard_group(many / relative) as group:  # zarr's own read of the one-file group
+                stored = np.asarray(group[name][...])
             assert decoded.dtype == stored.dtype and np.array_equal(decoded, stored), name
-            meta = (many / relative / name / "zarr.json").read_text()
+            meta = reader.files.read(f"{name}/zarr.json").decode()
             layouts.add("sharding_indexed" in meta)
     assert layouts == {True, False}, "both layouts were decoded"
     reader = ShardReader(dataset.location, dataset.index.column("shard")[0].as_py())
-    (many / reader.relative / "masks" / "zarr.json").rename(many / "masks.json")
+    kept = (many / reader.relative).read_bytes()
+    fx.corrupt_member(many / reader.relative, "masks/zarr.json")
     try:  # metadata it cannot read: zarr's read, and zarr's error
         with pytest.raises(StorageError, match="masks"):
             whole_array(ShardReader(dataset.location, reader.relative, verify=False), "masks")
     finally:
-        (many / "masks.json").rename(many / reader.relative / "masks" / "zarr.json")
+        (many / reader.relative).write_bytes(kept)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -251,12 +254,12 @@ SHARD = shard_path(sorted(fx.task_ids())[0], fx.ATTEMPT)
 
 
 def damage(root: Path, array: str, how: str) -> None:
-    files = sorted(p for p in (root / SHARD / array / "c").rglob("*") if p.is_file())
-    assert len(files) == 1, files
+    """The array's one chunk (or shard) member deleted from the shard's ZIP, or cut to half its bytes."""
     if how == "deleted":
-        files[0].unlink()
+        fx.zip_without(root / SHARD, f"{array}/c/0/0")
     else:
-        os.truncate(files[0], files[0].stat().st_size // 2)
+        member = next(name for name in zipfile.ZipFile(root / SHARD).namelist() if name.startswith(f"{array}/c/"))
+        fx.truncate_member(root / SHARD, member)
 
 
 @pytest.mark.parametrize(("array", "how"), [("points_keys", "deleted"), ("masks", "truncated")])

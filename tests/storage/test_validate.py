@@ -1,5 +1,9 @@
 """`storage.validate` finds each kind of corruption, naming the shard (and row), and passes a clean
-dataset. Every case corrupts a fresh copy of one clean local dataset."""
+dataset. Every case corrupts a fresh copy of one clean local dataset.
+
+The clean dataset has the folder layout (version 4: a file per array and chunk), where each damage is
+one file operation; the checks of a shard's content read it through `ShardReader` whatever its layout,
+and the damages of the one-file layout (version 5) are at the end."""
 
 from __future__ import annotations
 
@@ -23,11 +27,14 @@ from storage.shards import KEY_CHUNK_ROWS
 from storage.validate import validate
 from storage.writer import commit_path, committed_tasks, fragment_path, shard_path
 
+LAYOUT = 4
+"""The folder layout (see the module's docstring)."""
+
 
 @pytest.fixture(scope="module")
 def clean(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("validate") / "clean"
-    fx.build_dataset(str(root))
+    fx.build_dataset(str(root), schema_version=LAYOUT)
     return root
 
 
@@ -43,10 +50,10 @@ def first_task() -> str:
 
 
 def payload_of(task_id: str):  # type: ignore[no-untyped-def]
-    return next(p for p in fx.payloads() if p.attributes.task_id == task_id)
+    return next(p for p in fx.payloads(LAYOUT) if p.attributes.task_id == task_id)
 
 
-SHARD = shard_path(first_task(), fx.ATTEMPT)
+SHARD = shard_path(first_task(), fx.ATTEMPT, LAYOUT)
 FRAGMENT = fragment_path(first_task(), fx.ATTEMPT)
 
 
@@ -175,7 +182,7 @@ def test_offsets_not_ending_at_the_key_count(ds: Path) -> None:
 
 
 def test_index_row_pointing_to_an_uncommitted_shard(ds: Path) -> None:
-    orphan = shard_path(first_task(), "orphan")
+    orphan = shard_path(first_task(), "orphan", LAYOUT)
     shutil.copytree(ds / SHARD, ds / orphan)  # really on disk, but no commit record names it
     shards = pq.read_table(ds / FRAGMENT).column("shard").to_pylist()
     rewrite_fragment(ds, FRAGMENT, "shard", [orphan, *shards[1:]])
@@ -190,15 +197,27 @@ def test_index_row_out_of_range(ds: Path) -> None:
     assert lines_naming(problems(ds), "index row 3:", f"row {len(rows) + 7}", SHARD, "outside")
 
 
-def test_dangling_row_in_a_finalised_index(ds: Path) -> None:
-    location = open_location(str(ds))
-    finalise(location)
-    table = pq.read_table(ds / "index.parquet")
+def point_row_5_nowhere(path: Path) -> None:
+    table = pq.read_table(path)
     shards = table.column("shard").to_pylist()
     shards[5] = "shards/nowhere/a1.zarr"
     table = table.set_column(table.schema.get_field_index("shard"), table.schema.field("shard"), pa.array(shards))
-    pq.write_table(table, ds / "index.parquet")
+    pq.write_table(table, path)
+
+
+def test_dangling_row_in_a_finalised_index(ds: Path) -> None:
+    """The index an earlier datagen finalised (`fx.finalise_as_before`)."""
+    location = open_location(str(ds))
+    fx.finalise_as_before(location)
+    point_row_5_nowhere(ds / "index.parquet")
     assert lines_naming(problems(ds), "index row 5:", "shards/nowhere/a1.zarr")
+
+
+def test_dangling_row_in_the_manifest(ds: Path) -> None:
+    finalise(open_location(str(ds)))
+    samples = json.loads((ds / "index" / "manifest.json").read_text())["segments"][0]["samples"]
+    point_row_5_nowhere(ds / samples)
+    assert lines_naming(problems(ds), samples, "row 5 ", "shards/nowhere/a1.zarr")
 
 
 def test_fragment_missing(ds: Path) -> None:
@@ -211,7 +230,7 @@ def duplicate_task(ds: Path) -> tuple[str, int]:
     """Commit a second task whose shard and fragment copy the first task's; returns its shard and size."""
     task = first_task()
     copy_task = "0000000000000000-r9"  # sorts first, so the originals are the duplicates in the index
-    copy_shard, copy_fragment = shard_path(copy_task, fx.ATTEMPT), fragment_path(copy_task, fx.ATTEMPT)
+    copy_shard, copy_fragment = shard_path(copy_task, fx.ATTEMPT, LAYOUT), fragment_path(copy_task, fx.ATTEMPT)
     shutil.copytree(ds / SHARD, ds / copy_shard)
     shutil.copy(ds / FRAGMENT, ds / copy_fragment)
     count = payload_of(task).attributes.num_samples
@@ -326,7 +345,7 @@ def test_problems_are_records_and_repair_sorts_them_whatever_their_wording(ds: P
     import dataclasses
 
     from storage import Mend, Problem
-    from storage.index import INDEX_COVERAGE_FILE
+    from storage.manifest import MANIFEST_FILE
     from storage.repair import sort_problems
     from storage.validate import validate_dataset
 
@@ -344,7 +363,7 @@ def test_problems_are_records_and_repair_sorts_them_whatever_their_wording(ds: P
     shard_problem = next(p for p in found if p.task == first)
     assert shard_problem.file.startswith(SHARD) and shard_problem.kind in ("array", "shard")
     lost = next(p for p in found if p.task == second)
-    assert (lost.file, lost.kind, lost.mend) == (INDEX_COVERAGE_FILE, "index", Mend.TASK)
+    assert (lost.file, lost.kind, lost.mend) == (MANIFEST_FILE, "index", Mend.TASK)
     sorted_once = sort_problems(found)
     reworded = [dataclasses.replace(p, message=f"reworded {n}") for n, p in enumerate(found)]
     sorted_again = sort_problems(reworded)
@@ -361,3 +380,58 @@ def test_an_unreachable_store_is_its_own_error_not_a_problem(tmp_path: Path) -> 
     assert isinstance(error, StoreUnreachable) and isinstance(error, StorageError)
     local = storage_failure(str(tmp_path / "x"), PermissionError("denied"))
     assert isinstance(local, StoreUnreachable) and "check the path and its permissions" in str(local)
+
+
+# -- the one-file layout (version 5) ---------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def clean_zip(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("validate-zip") / "clean"
+    fx.build_dataset(str(root))
+    return root
+
+
+@pytest.fixture
+def zds(clean_zip: Path, tmp_path: Path) -> Path:
+    return fx.copy_dataset(clean_zip, tmp_path / "zds")
+
+
+ZIP_SHARD = shard_path(first_task(), fx.ATTEMPT)
+
+
+def test_clean_one_file_dataset_passes(clean_zip: Path) -> None:
+    assert ZIP_SHARD.endswith(".zarr.zip") and (clean_zip / ZIP_SHARD).is_file()
+    assert validate(str(clean_zip), full=True) == []
+
+
+ZIP_DAMAGES = {
+    "deleted": (lambda p: p.unlink(), "cannot open shard"),
+    "emptied": (lambda p: os.truncate(p, 0), "cannot open shard"),
+    "truncated": (lambda p: os.truncate(p, p.stat().st_size // 2), "cannot open shard"),
+    "directory overwritten": (lambda p: p.write_bytes(p.read_bytes()[:-22] + bytes(22)), "cannot open shard"),
+    "member lost": (lambda p: fx.zip_without(p, "points_keys/c/0/0"), "points_keys"),
+    "array metadata lost": (lambda p: fx.zip_without(p, "masks/zarr.json"), "masks"),
+    "member corrupt": (lambda p: fx.corrupt_member(p, "masks/c/0/0"), "truncated or corrupt"),
+    "key shard corrupt": (lambda p: fx.corrupt_member(p, "points_keys/c/0/0"), "truncated or corrupt"),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(ZIP_DAMAGES))
+def test_a_damaged_shard_file_is_named(zds: Path, damage: str) -> None:
+    make, says = ZIP_DAMAGES[damage]
+    make(zds / ZIP_SHARD)
+    assert lines_naming(problems(zds), ZIP_SHARD, says)
+
+
+def test_a_wrong_label_in_a_shard_file_is_named(zds: Path) -> None:
+    masks = payload_of(first_task()).arrays[MASKS]
+    row = int(np.flatnonzero(masks[:, LABEL_COLUMN])[-1])
+    label = int(masks[row, LABEL_COLUMN])
+
+    def drop_a_view(values: np.ndarray) -> np.ndarray:
+        values[row, LABEL_COLUMN] = label & (label - 1)
+        return values
+
+    fx.edit_array(zds / ZIP_SHARD, MASKS, drop_a_view)
+    assert lines_naming(problems(zds), f"{ZIP_SHARD} row {row}:", "uncovered")

@@ -6,17 +6,23 @@ the same `TaskResult`s and `ShardPayload`s; building a dataset from them only wr
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
+import io
 import os
 import shutil
 import tempfile
-from collections.abc import Sequence
+import zipfile
+from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import pytest
+import zarr
+import zarr.storage
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -24,6 +30,7 @@ from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
 from schemas.version import SCHEMA_VERSION
 from storage.dataset_info import init_dataset
+from storage.group_files import zip_bytes
 from storage.location import Location, open_location
 from storage.reader import finalise
 from storage.writer import ShardPayload, write_task
@@ -167,3 +174,105 @@ def int16_keys(packed: npt.NDArray[np.int64]) -> npt.NDArray[np.int16]:
 
 def total_samples() -> int:
     return sum(p.attributes.num_samples for p in payloads())
+
+
+@contextlib.contextmanager
+def shard_group(path: Path, mode: str = "r") -> Iterator[zarr.Group]:
+    """The zarr group of a shard as zarr itself opens it (the tests' independent reader): a folder group
+    (layouts 1-4) directly, a ZIP (layout 5) through zarr's ``ZipStore``. A ZIP opened for writing is
+    extracted, edited as a folder and zipped again as the writer zips (`storage.group_files.zip_bytes`)
+    when the block ends."""
+    if not path.name.endswith(".zip"):
+        yield zarr.open_group(str(path), mode=mode)  # type: ignore[arg-type]
+        return
+    if mode == "r":
+        store = zarr.storage.ZipStore(path, mode="r")
+        try:
+            yield zarr.open_group(store, mode="r")
+        finally:
+            store.close()
+        return
+    with tempfile.TemporaryDirectory() as folder:
+        with zipfile.ZipFile(path) as archive:
+            archive.extractall(folder)
+        yield zarr.open_group(folder, mode=mode)  # type: ignore[arg-type]
+        files = sorted(p for p in Path(folder).rglob("*") if p.is_file())
+        path.write_bytes(zip_bytes({p.relative_to(folder).as_posix(): p.read_bytes() for p in files}))
+
+
+def stored_array(path: Path, name: str) -> npt.NDArray[Any]:
+    """Array ``name`` of the shard at ``path``, read by zarr (`shard_group`)."""
+    with shard_group(path) as group:
+        return np.asarray(group[name][...])
+
+
+def edit_array(path: Path, name: str, change: Any) -> None:
+    """Replace array ``name`` of the shard at ``path`` by ``change(its values)`` (a damage of content)."""
+    with shard_group(path, mode="r+") as group:
+        values = change(np.asarray(group[name][...]).copy())
+        del group[name]
+        group.create_array(name, data=values)
+
+
+def zip_members(data: bytes) -> dict[str, bytes]:
+    """A shard ZIP's members by name."""
+    with zipfile.ZipFile(io.BytesIO(data)) as archive:
+        return {name: archive.read(name) for name in archive.namelist()}
+
+
+def without_member(data: bytes, member: str) -> bytes:
+    """A shard ZIP's bytes written again without ``member`` (a member lost)."""
+    return zip_bytes({name: value for name, value in zip_members(data).items() if name != member})
+
+
+def with_member_cut(data: bytes, member: str, keep: float = 0.5) -> bytes:
+    """A shard ZIP's bytes written again with ``member`` cut to ``keep`` of its bytes (0: emptied; the
+    ZIP itself stays sound)."""
+    members = zip_members(data)
+    members[member] = members[member][: int(len(members[member]) * keep)]
+    return zip_bytes(members)
+
+
+def zip_without(path: Path, member: str) -> None:
+    """The shard's ZIP written again without ``member`` (a member lost)."""
+    path.write_bytes(without_member(path.read_bytes(), member))
+
+
+def truncate_member(path: Path, member: str, keep: float = 0.5) -> None:
+    """The shard's ZIP written again with ``member`` cut to ``keep`` of its bytes."""
+    path.write_bytes(with_member_cut(path.read_bytes(), member, keep))
+
+
+def corrupt_member(path: Path, member: str) -> None:
+    """Flip a byte in the middle of ``member``'s stored bytes (the ZIP's own directory stays intact)."""
+    from storage.group_files import zip_entries
+
+    data = bytearray(path.read_bytes())
+    start, size = zip_entries(memoryview(bytes(data)))[member]
+    data[start + size // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def finalise_as_before(location: Location) -> None:
+    """The finalised index an earlier datagen wrote (before the manifest): every committed fragment
+    merged into ``index.parquet``, then ``index.json`` = {task id: attempt id} of the commits it covers;
+    a dataset finalised so must still read as it did."""
+    import json
+
+    from storage.index import INDEX_COVERAGE_FILE, INDEX_FILE, merge_fragments
+    from storage.parquet import parquet_bytes
+    from storage.writer import committed_tasks
+
+    commits = committed_tasks(location)
+    location.remove("index", recursive=True)
+    location.write_atomic(INDEX_FILE, parquet_bytes(merge_fragments(location, commits)))
+    coverage = {r.task_id: r.attempt_id for r in commits}
+    location.write_atomic(INDEX_COVERAGE_FILE, json.dumps(coverage, sort_keys=True).encode())
+
+
+def samples_table(root: Path) -> Path:
+    """The finalised index's samples table of a dataset finalised once (the manifest's one segment)."""
+    import json
+
+    (only,) = json.loads((root / "index" / "manifest.json").read_text())["segments"]
+    return root / only["samples"]

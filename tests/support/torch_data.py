@@ -38,6 +38,7 @@ from datagen.pipeline.thread_limits import single_threaded_blas
 from datagen.pipeline.viewspace import build_view_space
 from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
+from schemas.version import SCHEMA_VERSION
 from storage.dataset_info import init_dataset
 from storage.location import open_location
 from storage.reader import finalise
@@ -114,7 +115,7 @@ def objects_file(folder: Path, names: Sequence[str], rename: dict[str, str] | No
 def dataset_info(config: GenerationConfig) -> DatasetInfo:
     view_space = build_view_space(config.view_space)
     return DatasetInfo(
-        schema_version=1,
+        schema_version=SCHEMA_VERSION,
         config=config,
         config_hash=config.config_hash(),
         view_positions=[tuple(p) for p in view_space.positions.tolist()],

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+from support import storage as fx
 from support.engine import (
     FAST_BUILTINS,
     assert_same_samples,
@@ -101,21 +102,29 @@ def made(
 # ---------------------------------------------------------------------------------------------------------
 
 
-def chunk_files(location: Location, task_id: str) -> list[str]:
-    """The chunk files of the task's committed shard (absolute paths of its filesystem), sorted."""
+def shard_file(location: Location, task_id: str) -> str:
+    """The task's committed shard (one ZIP: an absolute path of its filesystem)."""
     (record,) = [r for r in committed_tasks(location) if r.task_id == task_id]
-    found = location.fs.find(location.path(record.shard))
-    return sorted(str(path) for path in found if "/c/" in str(path))
+    return location.path(record.shard)
+
+
+def chunk_members(data: bytes) -> list[str]:
+    """The chunk members of a shard's ZIP, sorted."""
+    return sorted(name for name in fx.zip_members(data) if "/c/" in name)
 
 
 def delete_chunk(location: Location, task_id: str) -> None:
-    location.fs.rm(chunk_files(location, task_id)[0])
+    path = shard_file(location, task_id)
+    data = bytes(location.fs.cat_file(path))
+    location.fs.pipe_file(path, fx.without_member(data, chunk_members(data)[0]))
 
 
 def truncate_array(location: Location, task_id: str) -> None:
-    largest = max(chunk_files(location, task_id), key=lambda path: location.fs.size(path))
-    data = location.fs.cat_file(largest)
-    location.fs.pipe_file(largest, data[: len(data) // 2])
+    path = shard_file(location, task_id)
+    data = bytes(location.fs.cat_file(path))
+    members = fx.zip_members(data)
+    largest = max(chunk_members(data), key=lambda name: len(members[name]))
+    location.fs.pipe_file(path, fx.with_member_cut(data, largest))
 
 
 def delete_commit(location: Location, task_id: str) -> None:
@@ -164,7 +173,7 @@ def test_repair_mends_each_damage_to_the_undamaged_samples(runner: CliRunner, ma
         assert after[task_id] != before[task_id], f"{what}: the damaged task was not re-run"
         assert {t: a for t, a in after.items() if t != task_id} == {t: a for t, a in before.items() if t != task_id}
         assert sorted(shard_dirs(made.url)[task_id]) == sorted(
-            f"{after[task_id]}.{kind}" for kind in ("parquet", "zarr")
+            f"{after[task_id]}.{kind}" for kind in ("parquet", "zarr.zip")
         ), f"{what}: the damaged attempt's files were not swept"
         before = after
 

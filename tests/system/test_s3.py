@@ -152,7 +152,7 @@ def test_submit_to_s3_and_read_back(reference: Reference, aws_env: S3Server) -> 
     assert job.summary is not None and job.summary["samples"] == summary.samples
     # the objects are in the bucket (not in some local folder named like the URL)
     keys = aws_env.keys("reference/")
-    assert "reference/dataset.json" in keys and "reference/index.parquet" in keys
+    assert "reference/dataset.json" in keys and "reference/index/manifest.json" in keys
     assert sorted(k for k in keys if k.startswith("reference/commits/")) == sorted(
         f"reference/commits/{task_id}.json" for task_id in summary.commits
     )
