@@ -81,6 +81,8 @@ def index_schema_version(schema: pa.Schema, expected: int | None = None) -> int 
     """The layout version whose index columns ``schema`` has (names and types, in order; nullability
     is not compared): ``expected`` when it has them (versions 3 and 4 share their columns, 4 changed
     only the shards' point order), else the lowest that has them; None for none."""
+    if expected in INDEX_SCHEMAS and schema.equals(INDEX_SCHEMAS[expected], check_metadata=False):
+        return expected  # the common case, without listing every version's fields
     found = [(field.name, field.type) for field in schema]
     matching = [
         version

@@ -39,7 +39,7 @@ from schemas.index import INDEX_SCHEMAS, CommitRecord, TaskTimings, index_schema
 from storage.location import DamagedFile, Location, damaged, first_line, first_validation_error
 from storage.parquet import read_index_table, read_parquet
 from storage.problems import Mend, Problem
-from storage.writer import COMMITS, commit_path, read_commit, read_commits
+from storage.writer import COMMITS, commit_path, parse_record, read_commits
 
 INDEX_FOLDER = "index"
 MANIFEST_FILE = f"{INDEX_FOLDER}/manifest.json"
@@ -293,9 +293,7 @@ def _committed(
     """Each task's commit record and index fragment, in ``task_ids`` order, read side by side."""
 
     def read(task_id: str) -> tuple[CommitRecord, pa.Table]:
-        record = given.get(task_id) or read_commit(location, task_id)
-        if record is None:
-            raise damaged(location.url, commit_path(task_id), "missing", rerun_task=True)
+        record = given.get(task_id) or parse_record(location, commit_path(task_id), CommitRecord)
         table = read_index_table(location, record.index_fragment)
         if table.num_rows != record.num_samples:
             problem = f"{table.num_rows} rows, its commit record {commit_path(task_id)} says {record.num_samples}"
@@ -327,10 +325,12 @@ def write_segment(
     with sink, pq.ParquetWriter(sink.stream, schema, compression="zstd") as writer:
         for record, rows in tasks:
             task_rows.append(task_row(record, **{k: v.get(record.task_id) for k, v in pack.items()}))
-            if index_schema_version(rows.schema, schema_version) != schema_version:
-                problem = f"index columns of another version than the dataset's {schema_version}"
-                raise damaged(location.url, record.index_fragment, problem, rerun_task=True)
-            batch.append(rows.cast(schema))
+            if not rows.schema.equals(schema, check_metadata=False):
+                if index_schema_version(rows.schema, schema_version) != schema_version:
+                    problem = f"index columns of another version than the dataset's {schema_version}"
+                    raise damaged(location.url, record.index_fragment, problem, rerun_task=True)
+                rows = rows.cast(schema)
+            batch.append(rows)
             if len(batch) == ROW_GROUP_TASKS:
                 writer.write_table(pa.concat_tables(batch))
                 batch = []

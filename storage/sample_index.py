@@ -196,12 +196,27 @@ def from_tasks(location: Location, tasks: pa.Table, source: Columns, packed: boo
 
 
 def numpy_of(column: pa.ChunkedArray) -> npt.NDArray[Any]:
-    """A column as one numpy array, chunk by chunk (a chunked array's own conversion goes through
-    pandas, which costs half a second to import)."""
-    parts = [chunk.to_numpy(zero_copy_only=False) for chunk in column.chunks]
+    """A column as one numpy array, chunk by chunk. Numbers and booleans without nulls are read from
+    their buffers: pyarrow's own ``to_numpy`` imports pandas (half a second) the first time it runs."""
+    parts = [_chunk_numpy(chunk) for chunk in column.chunks]
     if not parts:
-        return np.zeros(0, dtype=column.type.to_pandas_dtype())
+        return np.zeros(0, dtype=_NUMPY_TYPES.get(str(column.type), str(column.type)))
     return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+_NUMPY_TYPES = {"double": "float64", "float": "float32", "halffloat": "float16", "bool": "bool"}
+
+
+def _chunk_numpy(chunk: pa.Array) -> npt.NDArray[Any]:
+    kind = chunk.type
+    if chunk.null_count == 0 and (pa.types.is_integer(kind) or pa.types.is_floating(kind)):
+        dtype = np.dtype(_NUMPY_TYPES.get(str(kind), str(kind)))
+        data = chunk.buffers()[1]
+        return np.frombuffer(data, dtype=dtype, count=len(chunk), offset=chunk.offset * dtype.itemsize).copy()
+    if chunk.null_count == 0 and pa.types.is_boolean(kind):
+        bits = np.unpackbits(np.frombuffer(chunk.buffers()[1], dtype=np.uint8), bitorder="little")
+        return bits[chunk.offset : chunk.offset + len(chunk)].astype(bool)
+    return np.asarray(chunk.to_numpy(zero_copy_only=False))
 
 
 def from_table(table: pa.Table) -> SampleIndex:

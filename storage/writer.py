@@ -73,13 +73,13 @@ def failure_path(task_id: str) -> str:
 def read_commit(location: Location, task_id: str) -> CommitRecord | None:
     if not location.exists(commit_path(task_id)):
         return None
-    return _parse(location, commit_path(task_id), CommitRecord)
+    return parse_record(location, commit_path(task_id), CommitRecord)
 
 
 Record = TypeVar("Record", CommitRecord, FailureRecord)
 
 
-def _parse(location: Location, relative: str, model: type[Record]) -> Record:
+def parse_record(location: Location, relative: str, model: type[Record]) -> Record:
     """A commit or failure record; `DamagedFile` naming it when it cannot be read or parsed."""
     try:
         return model.model_validate_json(location.read_bytes(relative))
@@ -148,12 +148,12 @@ def write_failure(location: Location, record: FailureRecord) -> None:
 
 def read_failures(location: Location) -> list[FailureRecord]:
     """Every failure record; `DamagedFile` naming the first one that cannot be parsed."""
-    return [_parse(location, relative, FailureRecord) for relative in _record_files(location, FAILURES)]
+    return [parse_record(location, relative, FailureRecord) for relative in _record_files(location, FAILURES)]
 
 
 def committed_tasks(location: Location) -> list[CommitRecord]:
     """Every commit record, sorted by task id; `DamagedFile` naming the first unparsable one."""
-    records = [_parse(location, relative, CommitRecord) for relative in _record_files(location, COMMITS)]
+    records = [parse_record(location, relative, CommitRecord) for relative in _record_files(location, COMMITS)]
     return sorted(records, key=lambda r: r.task_id)
 
 
@@ -181,7 +181,7 @@ def _read_all(location: Location, folder: str, model: type[Record]) -> tuple[lis
     problems: list[Problem] = []
     for relative in _record_files(location, folder):
         try:
-            records.append(_parse(location, relative, model))
+            records.append(parse_record(location, relative, model))
         except DamagedFile as exc:
             task = relative.rsplit("/", 1)[-1].removesuffix(".json")
             problems.append(Problem("record", relative, f"{exc.problem}; {RERUN_FIX}", Mend.TASK, task))

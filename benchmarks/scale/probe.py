@@ -1,4 +1,4 @@
-"""One reader operation on one dataset, run in a process of its own by `benchmarks.scale.storage`.
+"""One reader operation on one dataset, run in a process of its own by `benchmarks.scale.dataset_commands`.
 
     python benchmarks/scale/probe.py OPERATION URL REPORT.json
 

@@ -18,7 +18,7 @@ import typer
 from rich import box
 from rich.table import Table
 
-from datagen.cli.common import UrlArgument, console, dataset_options, say, user_errors
+from datagen.cli.common import Cell, UrlArgument, console, dataset_options, print_rows, say, user_errors
 from datagen.errors import OutputError
 from datagen.inspection.listing import FAILED, SampleDetails, TaskRow, describe_sample, find_sample, list_tasks
 from datagen.inspection.stats import DatasetStats, dataset_stats
@@ -132,20 +132,21 @@ def write_png(path: Path, image: bytes, quiet: bool = False) -> None:
 # -- ls -------------------------------------------------------------------------------------------
 
 
-def tasks_table(rows: list[TaskRow]) -> Table:
-    table = _table("task", "object", "rot", "samples", "points", "size", "state")
-    for row in rows:
-        stored = row.state != FAILED
-        table.add_row(
-            row.task_id,
-            row.object_name or "-",
-            "-" if row.rotation is None else str(row.rotation),
-            str(row.samples) if stored else "-",
-            str(row.points) if stored else "-",
-            format_bytes(row.bytes_on_disk) if stored else "-",
-            row.state,
-        )
-    return table
+TASK_COLUMNS = ["task", "object", "rot", "samples", "points", "size", "state"]
+
+
+def task_cells(row: TaskRow) -> list[Cell]:
+    """One task's row of ``shards ls``."""
+    stored = row.state != FAILED
+    return [
+        row.task_id,
+        row.object_name or "-",
+        "-" if row.rotation is None else str(row.rotation),
+        str(row.samples) if stored else "-",
+        str(row.points) if stored else "-",
+        format_bytes(row.bytes_on_disk) if stored else "-",
+        row.state,
+    ]
 
 
 def ls(url: UrlArgument) -> None:
@@ -155,7 +156,7 @@ def ls(url: UrlArgument) -> None:
 
     with user_errors(url):
         rows = list_tasks(open_dataset(url, dataset_options(url)))
-    console.print(tasks_table(rows))
+    print_rows(TASK_COLUMNS, (task_cells(row) for row in rows))  # tab-separated lines outside a terminal
     failed = [row for row in rows if row.state == FAILED]
     committed = len(rows) - len(failed)
     total = sum(row.bytes_on_disk for row in rows)
@@ -236,11 +237,17 @@ def print_stats(stats: DatasetStats) -> None:
         f"{stats.empty_labels} empty labels"
     )
     say(f"labels: {stats.objective}")
-    per_object = _table("object", "samples", "per rotation (rotation:samples)", title="samples per object")
-    for name, count in stats.samples_per_object.items():
-        rotations = {t.rotation: t.samples for t in stats.samples_per_task if t.object_name == name}
-        per_object.add_row(name, str(count), _histogram_text(rotations))
-    console.print(per_object)
+    rotations: dict[str, dict[int, int]] = {}
+    for task in stats.samples_per_task:  # one pass: an object's rotations looked up, not searched for
+        rotations.setdefault(task.object_name, {})[task.rotation] = task.samples
+    say("samples per object")
+    print_rows(
+        ["object", "samples", "per rotation (rotation:samples)"],
+        (
+            [name, str(count), _histogram_text(rotations.get(name, {}))]
+            for name, count in stats.samples_per_object.items()
+        ),
+    )
 
     per_case = _table("|S|", "cases", "empty", "label sizes (|L|:cases)", title="cases per case size")
     for case_size, count in stats.cases_per_case_size.items():

@@ -1,6 +1,6 @@
 """The dataset side at 1k, 10k and 100k tasks: files, opening, both readers and every `shards` command.
 
-    python -m benchmarks.scale.storage --source before=/tmp/base-storage --source after=. \\
+    python -m benchmarks.scale.dataset_commands --source before=/tmp/base-storage --source after=. \\
         [--sizes 1000 10000 100000] [--before-sizes 1000 10000] [--work /work/runs/scale] \\
         --out benchmarks/scale/results/storage.md --plot benchmarks/scale/results/storage.png
 
@@ -187,7 +187,7 @@ def report(labels: Sequence[str], sizes: dict[str, Sequence[int]], cache: Cache)
     lines = [
         "# Scale: the dataset side at 1k, 10k and 100k tasks",
         "",
-        f"Made by `python -m benchmarks.scale.storage` on {datetime.date.today().isoformat()}: {machine_line()}.",
+        f"Made by `python -m benchmarks.scale.dataset_commands` on {datetime.date.today().isoformat()}: {machine_line()}.",
         "Each cell: the operation's own seconds where the process reports them (the whole process's wall",
         "seconds in brackets), its CPU seconds and peak resident memory; `stopped`: it passed the",
         f"{DEADLINE:.0f} s deadline. Growth: the ratio of each size to the one before and a log-log slope",
