@@ -187,7 +187,8 @@ def report(labels: Sequence[str], sizes: dict[str, Sequence[int]], cache: Cache)
     lines = [
         "# Scale: the dataset side at 1k, 10k and 100k tasks",
         "",
-        f"Made by `python -m benchmarks.scale.dataset_commands` on {datetime.date.today().isoformat()}: {machine_line()}.",
+        f"Made by `python -m benchmarks.scale.dataset_commands` on {datetime.date.today().isoformat()}:",
+        f"{machine_line()}.",
         "Each cell: the operation's own seconds where the process reports them (the whole process's wall",
         "seconds in brackets), its CPU seconds and peak resident memory; `stopped`: it passed the",
         f"{DEADLINE:.0f} s deadline. Growth: the ratio of each size to the one before and a log-log slope",
