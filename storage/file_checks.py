@@ -8,6 +8,7 @@ mends it (`storage.problems`).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -15,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from schemas.index import INDEX_SCHEMAS, CommitRecord, index_schema_version
 from storage.index import (
@@ -26,11 +28,11 @@ from storage.index import (
     task_row_counts,
     unindexed_tasks,
 )
-from storage.location import RERUN_FIX, DamagedFile, Location, is_temporary
-from storage.manifest import MANIFEST_FILE, Manifest, read_manifest, read_tasks, record_of
+from storage.location import RERUN_FIX, DamagedFile, Location, damaged, first_line, is_temporary
+from storage.manifest import INDEX_FOLDER, MANIFEST_FILE, Manifest, read_manifest, read_tasks, record_of
 from storage.parquet import read_index_table, read_parquet
 from storage.problems import Mend, Problem
-from storage.writer import commit_path, failure_path, read_failure_records
+from storage.writer import COMMITS, FAILURES, SHARDS, commit_path, failure_path, read_failure_records
 
 REFINALISE_FIX = "finish the job (`datagen resume JOB`) to finalise the index again"
 
@@ -179,7 +181,7 @@ def _check_samples_tables(
         own = tasks[start : start + segment.num_tasks]
         start += segment.num_tasks
         try:
-            table = read_index_table(location, segment.samples)
+            table = read_checked_columns(location, segment.samples, manifest.schema_version)
         except DamagedFile as exc:
             found.append(Problem("index", segment.samples, f"{exc.problem}; {REFINALISE_FIX}", Mend.INDEX))
             unreadable = True
@@ -195,6 +197,27 @@ def _check_samples_tables(
     if unreadable or not tables:
         return found, None
     return found, pa.concat_tables(tables)  # a row in the wrong place is checked row by row as well
+
+
+CHECKED_COLUMNS = ("sample_id", "task_id", "shard", "row")
+"""The index columns the row-by-row checks read (the others are the shards' business)."""
+
+
+def read_checked_columns(location: Location, relative: str, schema_version: int) -> pa.Table:
+    """`CHECKED_COLUMNS` of a samples table, read on the calling thread; `DamagedFile` when they
+    cannot be read or are not the layout's."""
+    schema = INDEX_SCHEMAS[schema_version]
+    try:
+        file = pq.ParquetFile(pa.BufferReader(location.read_bytes(relative)), pre_buffer=False)
+        if index_schema_version(file.schema_arrow, schema_version) != schema_version:
+            raise damaged(location.url, relative, "index columns match no known schema version")
+        return file.read(columns=list(CHECKED_COLUMNS), use_threads=False).cast(
+            pa.schema([schema.field(name) for name in CHECKED_COLUMNS])
+        )
+    except FileNotFoundError:
+        raise damaged(location.url, relative, "missing") from None
+    except (pa.ArrowException, ValueError, TypeError, OSError) as exc:
+        raise damaged(location.url, relative, f"unreadable Parquet ({first_line(exc)})") from None
 
 
 def _misplaced_row(table: pa.Table, tasks: list[dict[str, Any]]) -> tuple[str, str] | None:
@@ -244,22 +267,40 @@ def check_failures(location: Location, commits: Sequence[CommitRecord]) -> tuple
     return problems, warnings
 
 
-def leftover_temporaries(location: Location) -> list[str]:
-    """A warning per temporary file of an interrupted write (a full disk, a killed writer)."""
+def leftover_temporaries(location: Location, tasks: Sequence[str] | None = None) -> list[str]:
+    """A warning per temporary file of an interrupted write (a full disk, a killed writer): anywhere in
+    the dataset, or with ``tasks`` (a sampled validation) in the top folders and those tasks' shard
+    folders only."""
     return [
         f"{relative}: leftover temporary file of an interrupted write; readers never open it; "
         "safe to delete while no job writes to this dataset"
-        for relative in _files(location)
+        for relative in (_files(location) if tasks is None else _files_of(location, tasks))
         if is_temporary(relative)
     ]
 
 
+def _files_of(location: Location, tasks: Sequence[str]) -> Iterator[str]:
+    """The files directly in the dataset's top folders and in these tasks' shard folders, sorted."""
+    folders = ["", COMMITS, FAILURES, INDEX_FOLDER, *(f"{SHARDS}/{task}" for task in tasks)]
+    found = [f"{folder}/{name}" if folder else name for folder in folders for name in location.listdir(folder)]
+    yield from sorted(found)
+
+
 def _files(location: Location) -> Iterator[str]:
-    """Every file below the root, relative to it, sorted (one recursive listing)."""
+    """Every file below the root, relative to it, sorted (one recursive listing; on local disk the
+    operating system's own, ten times faster than fsspec's at 300,000 files)."""
+    if location.is_local:
+        found = [
+            os.path.relpath(os.path.join(top, name), location.root)
+            for top, _, names in os.walk(location.root)
+            for name in names
+        ]
+        yield from sorted(path.replace(os.sep, "/") for path in found)
+        return
     root = location.root.strip("/")
     try:
-        found = location.fs.find(location.root)
+        listed = location.fs.find(location.root)
     except FileNotFoundError:
         return
-    for path in sorted(str(p).strip("/") for p in found):
+    for path in sorted(str(p).strip("/") for p in listed):
         yield path.removeprefix(root).strip("/")

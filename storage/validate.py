@@ -154,7 +154,8 @@ def validate_dataset(
     found.problems.extend(_check_index(location, commits, version, packed, chosen))
     failure_problems, stale = check_failures(location, commits)
     found.problems.extend(failure_problems)
-    found.warnings.extend(stale + leftover_temporaries(location))
+    sampled = None if len(chosen) == len(commits) else [record.task_id for record in chosen]
+    found.warnings.extend(stale + leftover_temporaries(location, sampled))
     return replace(found, tasks_checked=len(chosen), tasks_total=len(commits))
 
 

@@ -19,6 +19,7 @@ at the dataset's alpha, and the expected label is found by other means than `dat
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import threading
@@ -48,7 +49,7 @@ from storage import (
     undominated,
 )
 from storage.index import open_index
-from storage.manifest import task_records
+from storage.manifest import TaskRecords, task_records
 from storage.sample_index import SampleIndex, numpy_of
 
 if TYPE_CHECKING:
@@ -149,10 +150,12 @@ def check_labels(
     """
     location = open_location(url, storage_options)
     checker = ShardLabelCheck(location, full, seed, search_limit)
+    records, spans = checker.tasks.records, checker.tasks.spans
+    checker.report.shards = len(records)
 
     def check(record: CommitRecord) -> list[LabelProblem]:
         try:
-            shard = ShardReader(location, record.shard, span=checker.spans.get(record.shard))
+            shard = ShardReader(location, record.shard, span=spans.get(record.shard))
         except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
             line = f"{record.shard}: cannot check labels ({_why(exc)})"
             return [LabelProblem(record.shard, None, UNREADABLE, line)]
@@ -161,10 +164,10 @@ def check_labels(
 
     # Reading a shard mostly waits on storage (zarr's event loop, decompression): overlap a few.
     with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
-        for done, unreadable in enumerate(pool.map(check, checker.records), start=1):
+        for done, unreadable in enumerate(pool.map(check, records), start=1):
             checker.report.problems.extend(unreadable)
             if progress:
-                progress(done, len(checker.records))
+                progress(done, len(records))
     return checker.finish()
 
 
@@ -177,18 +180,21 @@ class ShardLabelCheck:
 
     def __init__(self, location: Location, full: bool, seed: int = 0, search_limit: int = SEARCH_LIMIT) -> None:
         info = read_info(location)
-        tasks = task_records(location)
-        self.records = tasks.records
-        self.spans = tasks.spans
-        """Where a packed dataset's shards lie (none otherwise)."""
+        self.location = location
         self.config = info.config
         self.alpha, self.num_views = info.config.alpha, info.num_views
         self.tie_break = info.config.label_tie_break
         self.full, self.seed, self.search_limit = full, seed, search_limit
         self.index_rows = IndexRows(location)
         self.positions = np.asarray(info.view_positions, dtype=np.float64)
-        self.report = LabelReport(shards=len(self.records))
+        self.report = LabelReport()
         self._lock = threading.Lock()
+
+    @functools.cached_property
+    def tasks(self) -> TaskRecords:
+        """Every task's record and where a packed dataset's shards lie: read when `check_labels` walks
+        them (as `storage.validate`'s hook, the checker is handed each shard and reads no record)."""
+        return task_records(self.location)
 
     def __call__(self, record: CommitRecord, shard: ShardReader) -> None:
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, zlib.crc32(record.task_id.encode())]))
