@@ -138,6 +138,13 @@ def relabel(
         float | None,
         typer.Option("--tau", help="partial_cover: share of what all views see that input and label must see."),
     ] = None,
+    workers: Annotated[
+        int,
+        typer.Option("--workers", min=1, help="Tasks relabelled side by side on a local Ray (default 1: here)."),
+    ] = 1,
+    address: Annotated[
+        str | None, typer.Option("--address", help="Relabel on this Ray cluster (its workers reach the store).")
+    ] = None,
 ) -> None:
     """A new dataset: the same samples labelled for another alpha, tie-break or objective from the stored sets (no
     re-imaging)."""
@@ -161,6 +168,8 @@ def relabel(
                 objective=objective,
                 budget=budget,
                 tau=tau,
+                workers=workers,
+                address=address,
             )
         say(
             f"relabelled {summary.samples} samples of {summary.tasks} tasks for {summary.objective}, alpha "

@@ -238,8 +238,8 @@ def print_stats(stats: DatasetStats) -> None:
     )
     say(f"labels: {stats.objective}")
     rotations: dict[str, dict[int, int]] = {}
-    for task in stats.samples_per_task:  # one pass: an object's rotations looked up, not searched for
-        rotations.setdefault(task.object_name, {})[task.rotation] = task.samples
+    for counted in stats.samples_per_task:  # one pass: an object's rotations looked up, not searched for
+        rotations.setdefault(counted.object_name, {})[counted.rotation] = counted.samples
     say("samples per object")
     print_rows(
         ["object", "samples", "per rotation (rotation:samples)"],

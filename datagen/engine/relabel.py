@@ -23,6 +23,7 @@ import numpy as np
 import numpy.typing as npt
 from pydantic import ValidationError
 
+from datagen.engine.parallel import run_each
 from datagen.engine.shard_payload import task_payload
 from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
@@ -38,7 +39,6 @@ from storage import (
     ShardReader,
     StorageError,
     check_store,
-    committed_tasks,
     finalise,
     holds_dataset,
     init_dataset,
@@ -48,6 +48,7 @@ from storage import (
     write_failure,
     write_task,
 )
+from storage.manifest import task_records
 
 TASK_METADATA = ("refiner", "weights_id", "device", "seed", "schema_version")
 """Per-task metadata carried over from the source shard (the config hash is the new one)."""
@@ -101,9 +102,14 @@ def relabel_dataset(
     objective: str | None = None,
     budget: int | None = None,
     tau: float | None = None,
+    workers: int = 1,
+    address: str | None = None,
 ) -> RelabelSummary:
     """Write a new dataset at ``out_url`` labelling every committed task of ``url`` for ``alpha``,
-    ``tie_break`` and the label ``objective`` with its ``budget`` or ``tau`` (None keeps the source's)."""
+    ``tie_break`` and the label ``objective`` with its ``budget`` or ``tau`` (None keeps the source's).
+
+    Tasks are relabelled and committed one by one here, or side by side on Ray (`datagen.engine.parallel`):
+    on the cluster at ``address``, or on a local Ray of ``workers`` CPUs."""
     started = time.perf_counter()
     source = open_location(url, storage_options)
     check_store(source)
@@ -131,18 +137,20 @@ def relabel_dataset(
     failures = read_failures(source)
     for failure in sorted(failures, key=lambda f: f.task_id):
         write_failure(target, failure)
-    records = committed_tasks(source)
+    records = task_records(source)
     samples = dropped = failed = 0
-    for done, record in enumerate(records, start=1):
-        result = relabel_task(
-            source, record, config, new_info.config_hash, info.config_hash, np.asarray(info.view_positions)
-        )
-        write_task(target, task_payload(result, config), f"relabel-{uuid.uuid4().hex[:12]}")
-        samples += len(result.samples)
-        dropped += result.dropped_empty
-        failed += len(result.failures)
+    positions = np.asarray(info.view_positions)
+    hashes = (new_info.config_hash, info.config_hash)
+    calls = (
+        (url, out_url, storage_options, record, records.spans.get(record.shard), config, *hashes, positions)
+        for record in records.records
+    )
+    for done, outcome in enumerate(run_each(relabel_and_commit, calls, workers, address), start=1):
+        samples += outcome.samples
+        dropped += outcome.dropped_empty
+        failed += outcome.failed_cases
         if progress:
-            progress(RelabelProgress(done, len(records), samples, record.task_id))
+            progress(RelabelProgress(done, len(records.records), samples, outcome.task_id))
     finalise(target)
     return RelabelSummary(
         source=url,
@@ -155,13 +163,42 @@ def relabel_dataset(
         objective=config.objective_text(),
         source_config_hash=info.config_hash,
         config_hash=new_info.config_hash,
-        tasks=len(records),
+        tasks=len(records.records),
         samples=samples,
         dropped_empty=dropped,
         failed_cases=failed,
         failures=len(failures),
         seconds=time.perf_counter() - started,
     )
+
+
+@dataclass(frozen=True)
+class TaskOutcome:
+    """What relabelling one task wrote (all a parallel run sends back)."""
+
+    task_id: str
+    samples: int
+    dropped_empty: int
+    failed_cases: int
+
+
+def relabel_and_commit(
+    url: str,
+    out_url: str,
+    storage_options: dict[str, Any] | None,
+    record: CommitRecord,
+    span: tuple[str, int, int] | None,
+    config: GenerationConfig,
+    config_hash: str,
+    source_hash: str,
+    positions: npt.NDArray[np.float64],
+) -> TaskOutcome:
+    """Relabel one task of the dataset at ``url`` and commit it to ``out_url`` (here or in a Ray worker:
+    it opens both stores itself)."""
+    source, target = open_location(url, storage_options), open_location(out_url, storage_options)
+    result = relabel_task(source, record, config, config_hash, source_hash, positions, span)
+    write_task(target, task_payload(result, config), f"relabel-{uuid.uuid4().hex[:12]}")
+    return TaskOutcome(record.task_id, len(result.samples), result.dropped_empty, len(result.failures))
 
 
 def relabel_task(
@@ -171,6 +208,7 @@ def relabel_task(
     config_hash: str,
     source_hash: str,
     positions: npt.NDArray[np.float64],
+    span: tuple[str, int, int] | None = None,
 ) -> TaskResult:
     """One committed task of the source, its stored cases labelled for ``config.alpha``, with the
     next-view labels computed from its visibility sets and the view ``positions`` (so a dataset of an
@@ -180,7 +218,7 @@ def relabel_task(
     failed to label has no stored points.
     """
     started = time.perf_counter()
-    shard = ShardReader(source, record.shard)
+    shard = ShardReader(source, record.shard, span=span)
     attributes = shard.attributes
     num_views = attributes.num_views
     sets = TaskSets(

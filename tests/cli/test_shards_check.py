@@ -788,3 +788,27 @@ def test_relabel_with_a_bad_objective_is_one_line(tmp_path: Path, options: list[
     assert result.exit_code == 2 and len(result.output.splitlines()) == 1
     assert result.output.startswith(message), result.output
     assert not (tmp_path / "out").exists()
+
+
+def test_relabel_on_ray_gives_what_it_gives_here_and_reads_a_packed_dataset(tmp_path: Path) -> None:
+    """``--workers 2`` relabels the tasks side by side on a local Ray: the same samples as one by one
+    here; a packed dataset relabels to the same too (its shards read from their byte ranges)."""
+    from support.engine import start_local_ray, stop_local_ray
+
+    from storage.pack import pack_dataset
+
+    source, packed = tmp_path / "source", tmp_path / "packed"
+    fx.build_dataset(str(source), finalise_index=True)
+    pack_dataset(str(source), str(packed), target_bytes=100_000)
+    here, on_ray, from_packed = tmp_path / "here", tmp_path / "ray", tmp_path / "from-packed"
+    assert shards("relabel", str(source), "--out", str(here), "--alpha", "9").exit_code == 0
+    start_local_ray(2)
+    try:
+        result = shards("relabel", str(source), "--out", str(on_ray), "--alpha", "9", "--workers", "2")
+    finally:
+        stop_local_ray()
+    assert result.exit_code == 0, result.output
+    assert shards("relabel", str(packed), "--out", str(from_packed), "--alpha", "9").exit_code == 0
+    samples = assert_same_samples(str(on_ray), str(here))
+    assert samples == assert_same_samples(str(from_packed), str(here)) == fx.total_samples()
+    assert shards("validate", str(on_ray)).exit_code == 0
