@@ -261,19 +261,19 @@ def finalise(location: Location, schema_version: int, commits: Sequence[CommitRe
     since it was last written (all of them the first time), merged with the others past `MAX_SEGMENTS`.
 
     ``commits``: every commit record, when the caller read them already. A manifest naming a task that
-    has no commit record any more (withdrawn by `datagen shards repair`, or lost) is written again from
-    the records alone.
+    has no commit record any more (withdrawn by `datagen shards repair`, or lost), or one that cannot
+    be read, is written again from the records alone.
     """
     listed = [r.task_id for r in commits] if commits is not None else listed_commits(location)
-    manifest = read_manifest(location)
-    known: set[str] = set()
-    if manifest is not None:
-        if manifest.packed:
-            raise damaged(location.url, MANIFEST_FILE, "a packed dataset is read-only; it has no commit records")
-        known = set(read_tasks(location, manifest).column("task_id").to_pylist())
-        if not known <= set(listed):
-            manifest = None  # a task withdrawn or lost: every segment is written again
-            known = set()
+    try:
+        manifest = read_manifest(location)
+        known = set() if manifest is None else set(read_tasks(location, manifest).column("task_id").to_pylist())
+    except DamagedFile:  # a damaged manifest is written again from the records
+        manifest, known = None, set()
+    if manifest is not None and manifest.packed:
+        raise damaged(location.url, MANIFEST_FILE, "a packed dataset is read-only; it has no commit records")
+    if manifest is not None and not known <= set(listed):
+        manifest, known = None, set()  # a task withdrawn or lost: every segment is written again
     new = sorted(set(listed) - known)
     given = {r.task_id: r for r in commits} if commits is not None else {}
     segments = list(manifest.segments) if manifest is not None else []

@@ -217,26 +217,56 @@ def holds_dataset(location: Location) -> bool:
     return location.exists(DATASET_FILE) or bool(location.listdir(COMMITS))
 
 
-def sweep_orphans(location: Location, finished: Collection[str] | None = None) -> list[str]:
+def sweep_orphans(
+    location: Location, finished: Collection[str] | None = None, commits: Collection[CommitRecord] | None = None
+) -> list[str]:
     """Delete attempt files no commit record names; returns what was removed (sorted).
 
     Without ``finished`` only committed tasks are swept: an attempt of an uncommitted task may still
     be running. ``finished`` names tasks no attempt writes to any more (a job that ended): only those
     are swept, the uncommitted ones (failed) included; other tasks may belong to another job.
+    ``commits``: every commit record, when the caller holds them (a finalised manifest's), else read.
+    The shard folders are listed once, not one listing per task.
     """
-    committed = {r.task_id: r for r in committed_tasks(location)}
+    committed = {r.task_id: r for r in (committed_tasks(location) if commits is None else commits)}
+    wanted = None if finished is None else set(finished)
     removed = []
-    for task_id in location.listdir(SHARDS):
+    for task_id, names in sorted(_attempt_files(location).items()):
         record = committed.get(task_id)
-        if (record is None) if finished is None else (task_id not in finished):
+        if (record is None) if wanted is None else (task_id not in wanted):
             continue
         keep = {record.shard, record.index_fragment} if record is not None else set()
-        for name in location.listdir(f"{SHARDS}/{task_id}"):
+        for name in names:
             relative = f"{SHARDS}/{task_id}/{name}"
             if relative not in keep:
                 location.remove(relative, recursive=True)
                 removed.append(relative)
     return sorted(removed)
+
+
+def _attempt_files(location: Location) -> dict[str, list[str]]:
+    """{task id: the names directly in its shard folder (files, or a folder-layout group)}, sorted: on
+    local disk one scan of each folder, on an object store one recursive listing of ``shards/``."""
+    found: dict[str, set[str]] = {}
+    if location.is_local:
+        try:
+            tasks = list(os.scandir(location.path(SHARDS)))
+        except FileNotFoundError:
+            return {}
+        for task in tasks:
+            if task.is_dir():
+                found[task.name] = {entry.name for entry in os.scandir(task.path)}
+    else:
+        base = location.path(SHARDS).strip("/")
+        try:
+            listed = location.fs.find(location.path(SHARDS))
+        except FileNotFoundError:
+            listed = []
+        for path in listed:
+            parts = str(path).strip("/").removeprefix(base).strip("/").split("/")
+            if len(parts) >= 2:
+                found.setdefault(parts[0], set()).add(parts[1])
+    return {task: sorted(names) for task, names in found.items() if names}
 
 
 def sweep_temporaries(location: Location, older_than: float) -> list[str]:

@@ -47,13 +47,12 @@ from datagen.pipeline.viewspace import build_view_space
 from jobs.ledger import CANCELLED, DONE, FAILED, FINAL_STATES, PENDING, RUNNING, Holders, Job, Ledger
 from schemas.config import GenerationConfig
 from schemas.dataset import DATASET_FILE, DatasetInfo
-from schemas.index import failure_record
+from schemas.index import CommitRecord, failure_record
 from schemas.jobs import JobSpec, TaskSpec
 from schemas.version import SCHEMA_VERSION
 from storage import (
     Location,
     check_store,
-    committed_tasks,
     finalise,
     init_dataset,
     open_location,
@@ -63,6 +62,7 @@ from storage import (
     sweep_temporaries,
     write_failure,
 )
+from storage.manifest import read_tasks, record_of
 
 LEASE_SECONDS = 120.0
 RENEW_EVERY = 20.0
@@ -346,13 +346,13 @@ def _count(ledger: Ledger, job_id: str, state: JobProgress) -> None:
 def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> dict[str, Any]:
     """Finalise the index and clean up leftovers; the job's summary, counted from the dataset."""
     with _store_errors(location.url):
-        commits = committed_tasks(location)
-        finalised = finalise(location, commits)
+        finalised = finalise(location)  # reads the records of the tasks its manifest does not name yet
+        commits = [record_of(row) for row in read_tasks(location, finalised.manifest).to_pylist()]
     task_ids = ledger.task_ids(job_id)
     job_tasks = set(task_ids)
     summary: dict[str, Any] = {"step_seconds": step_totals(r for r in commits if r.task_id in job_tasks).to_json()}
     try:
-        swept = sweep_leftovers(location, task_ids)
+        swept = sweep_leftovers(location, task_ids, commits)
     except Exception as error:  # a failed clean-up must not fail a finished job
         summary["sweep_error"] = f"{type(error).__name__}: {error}"
         swept = []
@@ -373,11 +373,11 @@ def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> d
     return summary
 
 
-def sweep_leftovers(location: Location, task_ids: list[str]) -> list[str]:
+def sweep_leftovers(location: Location, task_ids: list[str], commits: list[CommitRecord] | None = None) -> list[str]:
     """Remove what interrupted attempts of these finished tasks left (attempt files no commit names,
     temporary files older than `TEMPORARY_AGE`); the removed paths, sorted. Only for a job whose
     tasks are all finished: no attempt of theirs is still writing."""
-    return sorted(sweep_orphans(location, finished=task_ids) + sweep_temporaries(location, TEMPORARY_AGE))
+    return sorted(sweep_orphans(location, task_ids, commits) + sweep_temporaries(location, TEMPORARY_AGE))
 
 
 def _check_same_files(location: Location, config: GenerationConfig, config_hash: str) -> None:

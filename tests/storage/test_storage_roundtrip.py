@@ -290,3 +290,19 @@ def test_adding_to_a_dataset_of_another_poco_version_names_the_setting(tmp_path:
     job = DatasetInfo(**{**info.model_dump(), "config": now, "config_hash": now.config_hash()})
     with pytest.raises(StorageError, match=r"made with poco_version = 1, this job has 2: set it to add to it"):
         init_dataset(location, job)
+
+
+def test_finalise_writes_a_damaged_or_withdrawn_manifest_again(tmp_path: Path) -> None:
+    """A manifest that cannot be read, or that names a task whose record was withdrawn, is written
+    again from the commit records (what `shards repair` and a resumed job's end rely on)."""
+    from storage.repair import withdraw
+
+    location = fx.build_dataset(str(tmp_path / "ds"), finalise_index=True)
+    reference = open_dataset(str(tmp_path / "ds")).index
+    (tmp_path / "ds" / MANIFEST_FILE).write_text("{not json")
+    assert finalise(location).added_tasks == 2
+    assert open_dataset(str(tmp_path / "ds")).index.equals(reference)
+    first = sorted(fx.task_ids())[0]
+    withdraw(location, [first])  # out of the manifest, then its records
+    assert open_dataset(str(tmp_path / "ds")).column("task_id").to_pylist().count(first) == 0
+    assert finalise(location).num_tasks == 1
