@@ -1,7 +1,7 @@
-"""Objects files of many lines (benchmarks/scale measures 1k-50k): the meshes are hashed by several
-threads a block at a time and lines are split without shlex where they can be, with the very
-results of reading each whole file in turn: the same object ids, names, errors and order, and the
-job planned from them in file order."""
+"""Objects files of many lines (benchmarks/scale measures 1k-50k): the meshes are hashed a block at
+a time and lines are split without shlex where they can be, with the very results of reading each
+whole file: the same object ids, names, errors and order, and the job planned from them in file
+order, its tasks made on demand."""
 
 from __future__ import annotations
 
@@ -53,12 +53,6 @@ def test_each_line_resolves_as_when_read_whole_and_in_turn(listing: Path) -> Non
     assert isinstance(folder, ObjectLineError) and "is a folder" in folder.message
     spaced = entries[30]
     assert isinstance(spaced, ObjectSpec) and spaced.name == "spaced" and spaced.source.endswith("with space.obj")
-
-
-def test_one_hashing_thread_gives_the_same_listing(listing: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    threaded = read_objects_file(listing)
-    monkeypatch.setattr(objects_file, "HASH_THREADS", 1)
-    assert read_objects_file(listing) == threaded
 
 
 def test_a_large_mesh_is_hashed_a_block_at_a_time_to_the_same_id(tmp_path: Path) -> None:
