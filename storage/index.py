@@ -31,6 +31,7 @@ from storage.manifest import (
     check_samples_tables,
     listed_commits,
     read_manifest,
+    read_task_samples,
     read_tasks,
     task_row,
 )
@@ -88,6 +89,23 @@ def open_index(location: Location) -> SampleIndex:
             tasks = pa.concat_tables([tasks, pa.Table.from_pylist(rows, schema=TASKS_SCHEMA)])
             tail = merge_fragments(location, records).cast(schema)
     return from_tasks(location, tasks, ManifestColumns(location, manifest, tail), manifest.packed)
+
+
+def index_rows_of(location: Location, records: Sequence[CommitRecord], columns: list[str]) -> pa.Table:
+    """``columns`` of the index rows readers serve for these tasks, and only of them: the manifest's
+    row groups that hold them (fragments for tasks committed since), or an earlier datagen's index."""
+    wanted = {record.task_id for record in records}
+    manifest = read_manifest(location)
+    if manifest is None:
+        table = load_index(location)
+        return table.filter(pc.is_in(table.column("task_id"), pa.array(sorted(wanted), pa.string()))).select(columns)
+    tasks = read_tasks(location, manifest)
+    named = set(tasks.column("task_id").to_pylist())
+    found = read_task_samples(location, manifest, tasks, wanted & named, columns)
+    since = [record for record in records if record.task_id not in named]
+    if not since:
+        return found
+    return pa.concat_tables([found, merge_fragments(location, since).select(columns).cast(found.schema)])
 
 
 def _committed_record(location: Location, task_id: str) -> CommitRecord:

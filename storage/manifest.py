@@ -30,6 +30,8 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
@@ -190,6 +192,42 @@ def read_samples_row(location: Location, manifest: Manifest, position: int) -> d
             position -= rows
         raise damaged(location.url, segment.samples, f"fewer rows than {MANIFEST_FILE} says ({segment.num_samples})")
     return None
+
+
+def read_task_samples(
+    location: Location, manifest: Manifest, tasks: pa.Table, task_ids: Collection[str], columns: list[str]
+) -> pa.Table:
+    """``columns`` of the samples of ``task_ids`` (named by ``tasks``, the manifest's tasks table), in
+    sample order, reading only the row groups that hold them: a part of a large dataset's index (what
+    one worker of a parallel validation checks) without the rest."""
+    counts = numpy_counts(tasks)
+    ends = np.cumsum(counts)
+    wanted = np.isin(np.asarray(tasks.column("task_id").to_pylist(), dtype=object), list(task_ids))
+    starts = ends - counts
+    keep = np.zeros(int(ends[-1]) if ends.size else 0, dtype=bool)
+    for start, end in zip(starts[wanted].tolist(), ends[wanted].tolist(), strict=True):
+        keep[start:end] = True
+    pieces: list[pa.Table] = []
+    offset = 0
+    for segment in manifest.segments:
+        file = samples_file(location, segment)
+        group_start = offset
+        for group in range(file.metadata.num_row_groups):
+            rows = file.metadata.row_group(group).num_rows
+            if keep[group_start : group_start + rows].any():
+                table = file.read_row_group(group, columns=columns, use_threads=False)
+                pieces.append(table.filter(pa.array(keep[group_start : group_start + rows])))
+            group_start += rows
+        offset += segment.num_samples
+    if not pieces:
+        schema = INDEX_SCHEMAS[manifest.schema_version]
+        return pa.schema([schema.field(name) for name in columns]).empty_table()
+    return pa.concat_tables(pieces)
+
+
+def numpy_counts(tasks: pa.Table) -> npt.NDArray[np.int64]:
+    """Samples per task of a tasks table."""
+    return np.asarray(tasks.column("num_samples").to_pylist(), dtype=np.int64)
 
 
 def read_samples(location: Location, manifest: Manifest) -> pa.Table:

@@ -130,33 +130,95 @@ def validate_dataset(
 
     ``sample`` (0 < sample <= 1): read and check the shards and index fragments of that share of the
     tasks only (at least one, drawn from ``seed``); every record, the finalised index and the failure
-    records are still checked whole. The result says how many tasks were checked."""
+    records are still checked whole. The result says how many tasks were checked. The same checks in
+    parts (`plan_validation`, `check_dataset`, `check_tasks`) run side by side: `datagen shards validate`
+    spreads `check_tasks` over Ray."""
+    plan = plan_validation(url, storage_options, sample, seed)
+    found = check_dataset(plan)
+    if plan.info is not None:
+        problems = check_tasks(
+            plan.location, plan.info, plan.chosen, plan.numbers, plan.tasks.spans, full, seed, shard_check, progress
+        )
+        found.problems.extend(problems)
+    return found
+
+
+@dataclass(frozen=True)
+class ValidationPlan:
+    """What a validation reads, decided once: the dataset, its tasks and those whose files are read."""
+
+    location: Location
+    info: DatasetInfo | None
+    """None when ``dataset.json`` cannot be read (a problem): the shards are not checked then."""
+    tasks: TaskRecords
+    chosen: list[CommitRecord]
+    """The tasks whose shard (and fragment) are read: all, or a sample."""
+    problems: list[Problem]
+    """What reading the plan itself found (``dataset.json``, records)."""
+    absent: bool = False
+    """No dataset at all at the location (``problems`` says so): nothing else is checked."""
+
+    @property
+    def numbers(self) -> dict[str, int]:
+        """Each task's place among all tasks: its rows' sampling stream, whoever checks it."""
+        return {record.task_id: number for number, record in enumerate(self.tasks.records)}
+
+
+def plan_validation(
+    url: str, storage_options: dict[str, Any] | None = None, sample: float | None = None, seed: int = 0
+) -> ValidationPlan:
+    """Read ``dataset.json`` and every task's record, and choose the tasks whose files are read."""
     if sample is not None and not 0 < sample <= 1:
         raise StorageError(f"--sample {sample}: give a share of the tasks between 0 and 1 (0.01 checks 1 %)")
     location = open_location(url, storage_options)
     check_store(location)  # an unreachable store is an error, not a problem of the dataset
-    found = Validation()
+    problems: list[Problem] = []
     try:
         info: DatasetInfo | None = read_info(location)
     except DamagedFile as exc:  # the records can still be checked; the shards need the config
         info = None
-        found.problems.append(Problem("dataset", exc.relative, exc.problem, Mend.NONE))
+        problems.append(Problem("dataset", exc.relative, exc.problem, Mend.NONE))
     except StorageError as exc:  # no dataset here at all
-        return Validation([Problem("dataset", "", str(exc), Mend.NONE)])
+        nothing = TaskRecords([], [], {})
+        return ValidationPlan(location, None, nothing, [], [Problem("dataset", "", str(exc), Mend.NONE)], absent=True)
     tasks = task_records(location)
-    commits = tasks.records
-    chosen = sampled_tasks(commits, sample, seed)
-    found.problems.extend(tasks.problems)
-    if info is not None:
-        found.problems.extend(_check_shards(location, info, tasks, chosen, full, seed, shard_check, progress))
-    packed = bool(tasks.spans)
-    version = None if info is None else info.schema_version
-    found.problems.extend(_check_index(location, commits, version, packed, chosen))
+    chosen = sampled_tasks(tasks.records, sample, seed)
+    return ValidationPlan(location, info, tasks, chosen, [*problems, *tasks.problems])
+
+
+def check_dataset(plan: ValidationPlan) -> Validation:
+    """The checks of the whole dataset: the finalised index against the records, row by row, the
+    failure records and leftovers (``plan.chosen``'s folders only when a sample), and, where no finalised
+    index covers the records, the chosen tasks' fragments (the index readers merge then)."""
+    location, commits, chosen = plan.location, plan.tasks.records, plan.chosen
+    found = Validation(problems=list(plan.problems))
+    if plan.absent:
+        return found
+    version = None if plan.info is None else plan.info.schema_version
+    found.problems.extend(_check_index(location, commits, version, bool(plan.tasks.spans), chosen))
     failure_problems, stale = check_failures(location, commits)
     found.problems.extend(failure_problems)
     sampled = None if len(chosen) == len(commits) else [record.task_id for record in chosen]
     found.warnings.extend(stale + leftover_temporaries(location, sampled))
     return replace(found, tasks_checked=len(chosen), tasks_total=len(commits))
+
+
+def check_tasks(
+    location: Location,
+    info: DatasetInfo,
+    records: list[CommitRecord],
+    numbers: dict[str, int],
+    spans: dict[str, tuple[str, int, int]],
+    full: bool,
+    seed: int,
+    shard_check: ShardCheck | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[Problem]:
+    """Each of ``records``' shards (side by side on threads), with ``shard_check`` run on each sound
+    one. ``numbers``: each task's place among all the dataset's tasks (its rows' sampling stream);
+    ``spans``: where a packed dataset's shards lie. What a worker of a parallel validation runs."""
+    tasks = TaskRecords(records, [], spans)
+    return _check_shards(location, info, tasks, records, full, seed, shard_check, progress, numbers)
 
 
 def sampled_tasks(records: list[CommitRecord], sample: float | None, seed: int) -> list[CommitRecord]:
@@ -179,11 +241,11 @@ def _check_shards(
     seed: int,
     shard_check: ShardCheck | None,
     progress: Callable[[int, int], None] | None,
+    numbers: dict[str, int],
 ) -> list[Problem]:
     """The shards of ``commits`` (all tasks, or a sample of them), side by side."""
     problems: list[Problem] = []
     num_views, config = info.num_views, info.config
-    numbers = {record.task_id: number for number, record in enumerate(tasks.records)}
 
     def check(record: CommitRecord) -> list[Problem]:
         # one stream per shard, numbered in the whole dataset: threads and sampling cannot reorder draws

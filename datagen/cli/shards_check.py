@@ -15,9 +15,10 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from datagen.cli.common import UrlArgument, dataset_options, progress_bar, say, user_errors
+from storage.problems import lines
 
 if TYPE_CHECKING:
-    from datagen.inspection.label_check import LabelReport
+    from datagen.inspection.label_check import LabelProblem
     from storage.problems import Problem
 
 UNCOVERED_KIND = "uncovered"
@@ -38,40 +39,44 @@ def validate(
             "every record and the index are still checked whole.",
         ),
     ] = None,
+    workers: Annotated[
+        int,
+        typer.Option("--workers", min=1, help="Chunks of tasks checked side by side on a local Ray (default 1: here)."),
+    ] = 1,
+    address: Annotated[
+        str | None, typer.Option("--address", help="Check on this Ray cluster (its workers reach the store).")
+    ] = None,
 ) -> None:
     """Check structure, index, records and labels (cover, minimum, lexicographic); exit 0 only when all holds.
 
     Warnings (leftover temporary files, stale failure records) are printed but do not fail it.
     """
-    from datagen.inspection.label_check import ShardLabelCheck
-    from storage import StorageError, check_store, open_location
-    from storage.validate import validate_dataset
+    from datagen.engine.parallel import run_each
+    from datagen.inspection.validation import check_chunk, task_chunks
+    from storage.validate import check_dataset, plan_validation
 
     with user_errors(url):
         options = dataset_options(url)
-        check_store(open_location(url, options))  # an unreachable store is one error line, not a problem
-        report: LabelReport | None = None
-        try:
-            checker: ShardLabelCheck | None = ShardLabelCheck(open_location(url, options), full=every, seed=seed)
-        except StorageError:  # dataset.json unreadable: storage's own line says so
-            checker = None
-        with progress_bar() as bar:
-            shards = bar.add_task("shards: structure, coverage, labels", total=None)
-            found = validate_dataset(
-                url,
-                full=every,
-                seed=seed,
-                storage_options=options,
-                shard_check=checker,
-                progress=lambda done, total: bar.update(shards, completed=done, total=total),
-                sample=sample,
-            )
-        problems = found.lines
-        if checker is not None:
-            report = checker.finish()
-        checked = report.checked if report is not None else 0
-        if report is not None:
-            problems.extend(_new_label_lines(found.problems, report))
+        plan = plan_validation(url, options, sample, seed)
+        found = check_dataset(plan)
+        storage_problems = list(found.problems)
+        labels: list[LabelProblem] = []
+        checked = 0
+        if plan.info is not None:
+            calls = task_chunks(plan, url, options, every, seed)
+            done = 0
+            chunks = []
+            with progress_bar() as bar:
+                shards = bar.add_task("shards: structure, coverage, labels", total=len(plan.chosen))
+                for findings in run_each(check_chunk, calls, workers, address):
+                    chunks.append(findings)
+                    done += findings.tasks
+                    bar.update(shards, completed=done)
+            for findings in sorted(chunks, key=lambda f: f.number):  # the tasks' order, whoever ran them
+                storage_problems.extend(findings.problems)
+                labels.extend(findings.labels)
+                checked += findings.checked
+        problems = lines(storage_problems) + _new_label_lines(storage_problems, labels)
         for line in problems:
             say(line)
         for line in found.warnings:
@@ -97,7 +102,7 @@ def _count(number: int, noun: str) -> str:
     return f"{number} {noun}{'s' if number != 1 else ''}"
 
 
-def _new_label_lines(storage_problems: list[Problem], report: LabelReport) -> list[str]:
+def _new_label_lines(storage_problems: list[Problem], labels: list[LabelProblem]) -> list[str]:
     """The label checker's lines, minus those storage already reported for the same shard or row (from
     the records: the shard a problem is in, the sample whose label leaves keys of U uncovered)."""
     from datagen.inspection.label_check import UNCOVERED, UNREADABLE
@@ -105,7 +110,7 @@ def _new_label_lines(storage_problems: list[Problem], report: LabelReport) -> li
     damaged_shards = {p.file for p in storage_problems if not p.place}
     uncovered = {(p.file, p.place) for p in storage_problems if p.kind == UNCOVERED_KIND}
     lines = []
-    for problem in report.problems:
+    for problem in labels:
         if problem.kind == UNREADABLE and problem.shard in damaged_shards:
             continue
         if problem.kind == UNCOVERED and (problem.shard, f"row {problem.row}") in uncovered:

@@ -19,7 +19,6 @@ at the dataset's alpha, and the expected label is found by other means than `dat
 
 from __future__ import annotations
 
-import functools
 import itertools
 import math
 import threading
@@ -33,7 +32,6 @@ from typing import TYPE_CHECKING, Any
 import highspy
 import numpy as np
 import numpy.typing as npt
-import pyarrow as pa
 
 from datagen.pipeline import setcover
 from schemas.config import MAX_VIEWS, GenerationConfig
@@ -48,9 +46,8 @@ from storage import (
     read_info,
     undominated,
 )
-from storage.index import open_index
-from storage.manifest import TaskRecords, task_records
-from storage.sample_index import SampleIndex, numpy_of
+from storage.index import index_rows_of
+from storage.manifest import task_records
 
 if TYPE_CHECKING:
     from datagen.inspection.coverage_check import VisibilityRows
@@ -62,6 +59,8 @@ SEARCH_LIMIT = 2_000_000
 DENSE_CELLS = 1 << 24
 """Largest key bounding box (cells) `full_masks` covers with a dense grid (128 MiB of uint64)."""
 READ_THREADS = 2
+TASK_CHUNK = 512
+"""Tasks whose index rows the checks hold at once."""
 """Shards checked at once (their reads overlap; results keep the task order)."""
 CHUNK = 4096
 """Combinations tested per vectorised step."""
@@ -149,52 +148,66 @@ def check_labels(
     as `storage.validate`'s per-shard hook instead, reading each shard once.)
     """
     location = open_location(url, storage_options)
-    checker = ShardLabelCheck(location, full, seed, search_limit)
-    records, spans = checker.tasks.records, checker.tasks.spans
-    checker.report.shards = len(records)
+    tasks = task_records(location)
+    report = LabelReport(shards=len(tasks.records))
+    done = 0
+    for start in range(0, len(tasks.records), TASK_CHUNK):  # the index rows of a chunk at a time
+        chunk = tasks.records[start : start + TASK_CHUNK]
+        checker = ShardLabelCheck(location, full, seed, search_limit, records=chunk)
 
-    def check(record: CommitRecord) -> list[LabelProblem]:
-        try:
-            shard = ShardReader(location, record.shard, span=spans.get(record.shard))
-        except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
-            line = f"{record.shard}: cannot check labels ({_why(exc)})"
-            return [LabelProblem(record.shard, None, UNREADABLE, line)]
-        checker(record, shard)
-        return []
+        def check(record: CommitRecord, checker: ShardLabelCheck = checker) -> list[LabelProblem]:
+            try:
+                shard = ShardReader(location, record.shard, span=tasks.spans.get(record.shard))
+            except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
+                line = f"{record.shard}: cannot check labels ({_why(exc)})"
+                return [LabelProblem(record.shard, None, UNREADABLE, line)]
+            checker(record, shard)
+            return []
 
-    # Reading a shard mostly waits on storage (zarr's event loop, decompression): overlap a few.
-    with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
-        for done, unreadable in enumerate(pool.map(check, records), start=1):
-            checker.report.problems.extend(unreadable)
-            if progress:
-                progress(done, len(records))
-    return checker.finish()
+        # Reading a shard mostly waits on storage (zarr's event loop, decompression): overlap a few.
+        with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
+            for unreadable in pool.map(check, chunk):
+                checker.report.problems.extend(unreadable)
+                done += 1
+                if progress:
+                    progress(done, len(tasks.records))
+        report.problems.extend(checker.report.problems)
+        report.checked += checker.report.checked
+    return finish_report(report)
+
+
+def finish_report(report: LabelReport) -> LabelReport:
+    """The report with its problems sorted by shard, row, kind and line."""
+    report.problems.sort(key=lambda p: (p.shard, -1 if p.row is None else p.row, p.kind, p.line))
+    return report
 
 
 class ShardLabelCheck:
-    """The label checks as a `storage.validate` shard hook: each shard is read once, for both.
+    """The label checks of some tasks as a `storage.validate` shard hook: each shard is read once, for
+    both. ``records``: the tasks it is handed (their index rows are read for them alone).
 
     Findings go to ``report`` (sorted by shard and row once `finish` is called); the rows checked in
     a shard are drawn as `check_labels` draws them, so both paths judge the same labels.
     """
 
-    def __init__(self, location: Location, full: bool, seed: int = 0, search_limit: int = SEARCH_LIMIT) -> None:
+    def __init__(
+        self,
+        location: Location,
+        full: bool,
+        seed: int = 0,
+        search_limit: int = SEARCH_LIMIT,
+        records: Sequence[CommitRecord] = (),
+    ) -> None:
         info = read_info(location)
         self.location = location
         self.config = info.config
         self.alpha, self.num_views = info.config.alpha, info.num_views
         self.tie_break = info.config.label_tie_break
         self.full, self.seed, self.search_limit = full, seed, search_limit
-        self.index_rows = IndexRows(location)
+        self.index_rows = IndexRows(location, records)
         self.positions = np.asarray(info.view_positions, dtype=np.float64)
-        self.report = LabelReport()
+        self.report = LabelReport(shards=len(records))
         self._lock = threading.Lock()
-
-    @functools.cached_property
-    def tasks(self) -> TaskRecords:
-        """Every task's record and where a packed dataset's shards lie: read when `check_labels` walks
-        them (as `storage.validate`'s hook, the checker is handed each shard and reads no record)."""
-        return task_records(self.location)
 
     def __call__(self, record: CommitRecord, shard: ShardReader) -> None:
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, zlib.crc32(record.task_id.encode())]))
@@ -234,8 +247,7 @@ class ShardLabelCheck:
         ]
 
     def finish(self) -> LabelReport:
-        self.report.problems.sort(key=lambda p: (p.shard, -1 if p.row is None else p.row, p.kind, p.line))
-        return self.report
+        return finish_report(self.report)
 
 
 @dataclass(frozen=True)
@@ -251,59 +263,47 @@ class IndexRow:
 
 
 class IndexRows:
-    """(shard, row) -> what the index holds (`IndexRow`), built one shard at a time from the index
-    columns as the checks reach it: the whole index as Python objects would take gigabytes at millions
-    of samples. Empty when the index cannot be read (`storage.validate` says why)."""
+    """(shard, row) -> what the index holds (`IndexRow`) for some tasks' samples, read for them alone
+    (`storage.index.index_rows_of`: the manifest's row groups that hold them): the whole index as Python
+    objects would take gigabytes at millions of samples. Empty when the index cannot be read
+    (`storage.validate` says why)."""
 
-    def __init__(self, location: Location) -> None:
-        self._lock = threading.Lock()
-        self._built: dict[str, dict[int, IndexRow]] = {}
-        try:
-            samples = open_index(location)
-        except Exception:
-            self._samples: SampleIndex | None = None
+    def __init__(self, location: Location, records: Sequence[CommitRecord]) -> None:
+        self._rows: dict[tuple[str, int], IndexRow] = {}
+        if not records:
             return
-        self._samples = samples
-        codes = samples.codes.astype(np.int64)
-        self._order = np.argsort(codes, kind="stable")
-        self._bounds = np.searchsorted(codes[self._order], np.arange(len(samples.shards) + 1))
-        self._code = {shard: k for k, shard in enumerate(samples.shards)}
-        names = samples.column_names
-        wanted = ["label", *(AMBIGUITY_COLUMNS if "label_support" in names else ())]
-        wanted += list(NEXT_VIEW_COLUMNS) if "best_view" in names else []
-        self._columns = {name: numpy_of(samples.column(name)) for name in wanted}
-        self._ids = samples.column("sample_id")
-
-    def get(self, key: tuple[str, int]) -> IndexRow | None:
-        shard, row = key
-        with self._lock:
-            found = self._built.get(shard)
-            if found is None:
-                found = self._built[shard] = self._shard_rows(shard)
-                if len(self._built) > 64:  # the checks walk shard by shard: keep the last few
-                    self._built.pop(next(iter(self._built)))
-        return found.get(row)
-
-    def _shard_rows(self, shard: str) -> dict[int, IndexRow]:
-        code = self._code.get(shard) if self._samples is not None else None
-        if self._samples is None or code is None:
-            return {}
-        positions = self._order[self._bounds[code] : self._bounds[code + 1]]
-        columns = {name: values[positions].tolist() for name, values in self._columns.items()}
-        ids = self._ids.take(pa.array(positions)).to_pylist()
-        ambiguity = zip(*(columns[c] for c in AMBIGUITY_COLUMNS), strict=True) if "label_support" in columns else None
-        views = zip(*(columns[c] for c in NEXT_VIEW_COLUMNS), strict=True) if "best_view" in columns else None
-        found = {}
-        for row, name, label in zip(self._samples.rows[positions].tolist(), ids, columns["label"], strict=True):
+        try:
+            columns = index_columns(location)
+            table = index_rows_of(location, records, ["shard", "row", "sample_id", "label", *columns])
+        except Exception:
+            return
+        values = {name: table.column(name).to_pylist() for name in table.column_names}
+        ambiguity = (
+            zip(*(values[c] for c in AMBIGUITY_COLUMNS), strict=True) if AMBIGUITY_COLUMNS[0] in values else None
+        )
+        views = zip(*(values[c] for c in NEXT_VIEW_COLUMNS), strict=True) if NEXT_VIEW_COLUMNS[0] in values else None
+        for shard, row, name, label in zip(
+            values["shard"], values["row"], values["sample_id"], values["label"], strict=True
+        ):
             a = next(ambiguity) if ambiguity is not None else None
             v = next(views) if views is not None else None
-            found[int(row)] = IndexRow(
+            self._rows[(shard, int(row))] = IndexRow(
                 name,
                 int(label),
                 (int(a[0]), int(a[1]), bool(a[2])) if a is not None else None,
                 (int(v[0]), int(v[1]), int(v[2]), int(v[3])) if v is not None else None,
             )
-        return found
+
+    def get(self, key: tuple[str, int]) -> IndexRow | None:
+        return self._rows.get(key)
+
+
+def index_columns(location: Location) -> list[str]:
+    """The optional columns the label checks compare (ambiguity, next view) that the dataset's index has."""
+    from schemas.index import INDEX_SCHEMAS
+
+    names = INDEX_SCHEMAS[read_info(location).schema_version].names
+    return [name for name in (*AMBIGUITY_COLUMNS, *NEXT_VIEW_COLUMNS) if name in names]
 
 
 def _why(error: Exception) -> str:

@@ -812,3 +812,24 @@ def test_relabel_on_ray_gives_what_it_gives_here_and_reads_a_packed_dataset(tmp_
     samples = assert_same_samples(str(on_ray), str(here))
     assert samples == assert_same_samples(str(from_packed), str(here)) == fx.total_samples()
     assert shards("validate", str(on_ray)).exit_code == 0
+
+
+def test_validate_on_ray_finds_what_it_finds_here(ds: Path) -> None:
+    """``--workers 2`` checks chunks of tasks side by side on a local Ray: the same lines, in the same
+    order, as checking them here; ``--sample`` says which share it read."""
+    from support.engine import start_local_ray, stop_local_ray
+
+    record = first(ds)
+    masks = stored_masks(ds, record)
+    row = int(np.flatnonzero(masks[:, LABEL_COLUMN])[-1])
+    write_label(ds, record, row, int(masks[row, LABEL_COLUMN]) & (int(masks[row, LABEL_COLUMN]) - 1))
+    here = shards("validate", str(ds), "--all")
+    start_local_ray(2)
+    try:
+        on_ray = shards("validate", str(ds), "--all", "--workers", "2")
+    finally:
+        stop_local_ray()
+    assert here.exit_code == on_ray.exit_code == 1
+    assert here.output == on_ray.output and f"{record.shard} row {row}" in here.output
+    sampled = shards("validate", str(ds), "--sample", "0.2")
+    assert "tasks checked (" in sampled.output
