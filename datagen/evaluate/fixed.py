@@ -20,6 +20,7 @@ from every view taken so far (ties to the lowest index), a well-spread plan for 
 from __future__ import annotations
 
 from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -116,9 +117,13 @@ class CaseWeights:
     num_views: int
 
 
+READ_THREADS = 8
+"""Shards read side by side when the visibility sets of every task are summed."""
+
+
 def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> CaseWeights:
     """Read every committed task's V_i and single-view cases from the dataset at ``url``."""
-    from storage import open_dataset
+    from storage import ShardReader, open_dataset
 
     dataset = open_dataset(url, storage_options)
     num_views = dataset.num_views
@@ -130,24 +135,17 @@ def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> Cas
         singles[dataset.samples.shards[code]].append(int(state).bit_length() - 1)
     weights: dict[int, int] = defaultdict(int)
     initial = cases = 0
-    for shard in sorted(singles):
-        reader = dataset.shard(shard)
+
+    def visibility(shard: str) -> tuple[str, npt.NDArray[np.uint64], npt.NDArray[np.int64]]:
+        reader = ShardReader(dataset.location, shard, span=dataset.samples.span(shard))
         keys, offsets = reader.array(keys_array("visible")), reader.array(offsets_array("visible"))
         packed = pack_keys(keys)
-        masks, counts = visibility_masks([packed[offsets[v] : offsets[v + 1]] for v in range(num_views)])
-        reference = int(counts.sum())
-        if not reference:
-            continue
-        views = np.array(singles[shard], dtype=np.uint64)
-        held = ((masks[:, None] >> views[None, :]) & np.uint64(1)).sum(axis=1).astype(np.int64)
-        cases += views.size
-        initial += sum(
-            int(c) * int(h) * SCALE // reference for c, h in zip(counts.tolist(), held.tolist(), strict=True)
-        )
-        for mask, count, inside in zip(masks.tolist(), counts.tolist(), held.tolist(), strict=True):
-            missing = views.size - inside  # single-view cases of this task that do not see these keys
-            if missing:
-                weights[mask] += count * missing * SCALE // reference
+        return shard, *visibility_masks([packed[offsets[v] : offsets[v + 1]] for v in range(num_views)])
+
+    with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:  # reads overlap; sums do not depend on order
+        visible = pool.map(visibility, sorted(singles))
+        for shard, masks, counts in visible:
+            initial, cases = _add_task(weights, masks, counts, singles[shard], initial, cases)
     if not cases:
         raise PlannerError(f"{url}: holds no single-view cases to choose fixed plans from")
     ordered = sorted(weights)
@@ -159,6 +157,29 @@ def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> Cas
         cases=cases,
         num_views=num_views,
     )
+
+
+def _add_task(
+    weights: dict[int, int],
+    masks: npt.NDArray[np.uint64],
+    counts: npt.NDArray[np.int64],
+    singles: list[int],
+    initial: int,
+    cases: int,
+) -> tuple[int, int]:
+    """Add one task's visibility masks and single-view cases to ``weights``; (initial, cases) after it."""
+    reference = int(counts.sum())
+    if not reference:
+        return initial, cases
+    views = np.array(singles, dtype=np.uint64)
+    held = ((masks[:, None] >> views[None, :]) & np.uint64(1)).sum(axis=1).astype(np.int64)
+    cases += views.size
+    initial += sum(int(c) * int(h) * SCALE // reference for c, h in zip(counts.tolist(), held.tolist(), strict=True))
+    for mask, count, inside in zip(masks.tolist(), counts.tolist(), held.tolist(), strict=True):
+        missing = views.size - inside  # single-view cases of this task that do not see these keys
+        if missing:
+            weights[mask] += count * missing * SCALE // reference
+    return initial, cases
 
 
 def choose_fixed_plans(
