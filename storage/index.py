@@ -30,6 +30,7 @@ from storage.manifest import (
     Finalised,
     check_samples_tables,
     listed_commits,
+    object_of,
     read_manifest,
     read_task_samples,
     read_tasks,
@@ -85,9 +86,10 @@ def open_index(location: Location) -> SampleIndex:
         new = sorted(set(listed) - set(named))
         if new:
             records = [_committed_record(location, task) for task in new]
-            rows = [task_row(r) for r in records]
+            fragments = [read_fragment(location, record) for record in records]
+            rows = [task_row(r, **object_of(f)) for r, f in zip(records, fragments, strict=True)]
             tasks = pa.concat_tables([tasks, pa.Table.from_pylist(rows, schema=TASKS_SCHEMA)])
-            tail = merge_fragments(location, records).cast(schema)
+            tail = pa.concat_tables(fragments).combine_chunks().cast(schema)
     return from_tasks(location, tasks, ManifestColumns(location, manifest, tail), manifest.packed)
 
 

@@ -68,10 +68,15 @@ TASKS_SCHEMA = pa.schema(
         pa.field("pack", pa.string(), nullable=True),
         pa.field("pack_offset", pa.int64(), nullable=True),
         pa.field("pack_size", pa.int64(), nullable=True),
+        pa.field("object_id", pa.string(), nullable=True),
+        pa.field("object_name", pa.string(), nullable=True),
+        pa.field("rotation", pa.int16(), nullable=True),
     ]
 )
 """One row per task: its commit record (``timings`` as its JSON), the bytes its files hold when known,
-and for a packed dataset where its shard lies (``pack`` file, offset and size of its ZIP there)."""
+for a packed dataset where its shard lies (``pack`` file, offset and size of its ZIP there), and what
+its index rows say of its object (null for a task without samples): a listing of tasks or objects
+reads this table, never a column of millions of samples."""
 
 
 class Segment(BaseModel):
@@ -122,6 +127,9 @@ def read_tasks(location: Location, manifest: Manifest) -> pa.Table:
     tables = []
     for segment in manifest.segments:
         table = read_parquet(location, segment.tasks)
+        for field in TASKS_SCHEMA:  # a column added since the table was written: unknown (null)
+            if field.nullable and field.name not in table.column_names:
+                table = table.append_column(field, pa.nulls(table.num_rows, field.type))
         try:
             table = table.select(TASKS_SCHEMA.names).cast(TASKS_SCHEMA)
         except (KeyError, pa.ArrowException, ValueError) as exc:
@@ -177,6 +185,28 @@ def read_samples_column(location: Location, manifest: Manifest, name: str) -> pa
     return pa.chunked_array(chunks, type=schema.field(name).type)
 
 
+def read_samples_group(
+    location: Location, manifest: Manifest, position: int, name: str
+) -> tuple[tuple[int, int], pa.Array] | None:
+    """Column ``name`` of the row group holding row ``position``, with that group's (first, end) rows;
+    None past the manifest's rows."""
+    offset = 0
+    for segment in manifest.segments:
+        if position >= offset + segment.num_samples:
+            offset += segment.num_samples
+            continue
+        file = samples_file(location, segment)
+        start = offset
+        for group in range(file.num_row_groups):
+            rows = file.metadata.row_group(group).num_rows
+            if position < start + rows:
+                values = file.read_row_group(group, columns=[name], use_threads=False).column(0).combine_chunks()
+                return (start, start + rows), values
+            start += rows
+        raise damaged(location.url, segment.samples, f"fewer rows than {MANIFEST_FILE} says ({segment.num_samples})")
+    return None
+
+
 def read_samples_row(location: Location, manifest: Manifest, position: int) -> dict[str, Any] | None:
     """Index row ``position`` of the manifest (its row group alone); None past the manifest's rows."""
     for segment in manifest.segments:
@@ -228,6 +258,22 @@ def read_task_samples(
 def numpy_counts(tasks: pa.Table) -> npt.NDArray[np.int64]:
     """Samples per task of a tasks table."""
     return np.asarray(tasks.column("num_samples").to_pylist(), dtype=np.int64)
+
+
+def count_values(location: Location, manifest: Manifest, name: str) -> dict[Any, int]:
+    """How many samples hold each value of column ``name``, read a row group at a time (a string
+    column as its dictionary): memory holds one row group, not a column of millions."""
+    counts: dict[Any, int] = {}
+    for segment in manifest.segments:
+        file = samples_file(location, segment)
+        for group in range(file.num_row_groups):
+            column = file.read_row_group(group, columns=[name], use_threads=False).column(0)
+            counted = pc.value_counts(column)
+            for value, count in zip(
+                counted.field("values").to_pylist(), counted.field("counts").to_pylist(), strict=True
+            ):
+                counts[value] = counts.get(value, 0) + int(count)
+    return counts
 
 
 def read_samples(location: Location, manifest: Manifest) -> pa.Table:
@@ -362,7 +408,8 @@ def write_segment(
     sink = _Sink(location, segment.samples)
     with sink, pq.ParquetWriter(sink.stream, schema, compression="zstd") as writer:
         for record, rows in tasks:
-            task_rows.append(task_row(record, **{k: v.get(record.task_id) for k, v in pack.items()}))
+            extra = {k: v.get(record.task_id) for k, v in pack.items()}
+            task_rows.append(task_row(record, **extra, **object_of(rows)))
             if not rows.schema.equals(schema, check_metadata=False):
                 if index_schema_version(rows.schema, schema_version) != schema_version:
                     problem = f"index columns of another version than the dataset's {schema_version}"
@@ -395,9 +442,21 @@ def task_row(record: CommitRecord, **extra: Any) -> dict[str, Any]:
         "pack": None,
         "pack_offset": None,
         "pack_size": None,
+        "object_id": None,
+        "object_name": None,
+        "rotation": None,
     }
     row.update(extra)
     return row
+
+
+def object_of(rows: pa.Table) -> dict[str, Any]:
+    """The object columns of a task's row in the tasks table, from its first index row (nulls without
+    rows)."""
+    if not rows.num_rows:
+        return {"object_id": None, "object_name": None, "rotation": None}
+    first = rows.slice(0, 1).select(["object_id", "object_name", "rotation"]).to_pylist()[0]
+    return dict(first)
 
 
 def record_of(row: dict[str, Any]) -> CommitRecord:

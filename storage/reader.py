@@ -136,6 +136,16 @@ class Dataset:
         """One index column of every sample as numpy (read and converted once)."""
         return self._column(name)
 
+    def counts(self, name: str) -> dict[Any, int]:
+        """How many samples hold each value of an index column, sorted by value (read a row group at a
+        time: a string column of millions is never held)."""
+        return self.samples.counts(name)
+
+    def task_table(self) -> pa.Table | None:
+        """The dataset's tasks, one row each in sample order (`storage.manifest.TASKS_SCHEMA`: record,
+        bytes, object), when a manifest names them; None for an index an earlier datagen finalised."""
+        return self.samples.tasks
+
     def task_records(self) -> list[CommitRecord]:
         """Every committed task's record, sorted by task id: from the manifest when one names them (no
         read per task), else the commit records."""
@@ -221,9 +231,9 @@ class Dataset:
         view_state = self.masks(i)[0]
         return LabelAmbiguity(
             covers=shard.array(COVERS)[offsets[row] : offsets[row + 1]],
-            count=int(self._column("min_covers")[i]),
-            exact=bool(self._column("min_covers_exact")[i]),
-            support=int(self._column("label_support")[i]),
+            count=int(self._value(i, "min_covers")),
+            exact=bool(self._value(i, "min_covers_exact")),
+            support=int(self._value(i, "label_support")),
             universe_rows=universe_rows(shard.array(COVER_ROWS), view_state),
         )
 
@@ -255,11 +265,17 @@ class Dataset:
             grid=case_grid(shard.array(GRID_HITS), shard.array(GRID_MISSES), case) if grid else None,
         )
 
+    def _value(self, i: int, name: str) -> Any:
+        """Index column ``name`` of sample ``i``: from the whole column when it was read already, else
+        from its row group alone (one sample does not read a column of millions)."""
+        found = self._columns.get(name)
+        return found[i] if found is not None else self.samples.value(i, name)
+
     def _column(self, name: str) -> npt.NDArray[Any]:
         """An index column as numpy, converted once per reader."""
         found = self._columns.get(name)
         if found is None:
-            found = self._columns[name] = numpy_of(self.samples.column(name))
+            found = self._columns[name] = numpy_of(self.samples.column(name, keep=False))
         return found
 
     def __getitem__(self, i: int) -> Sample:
@@ -272,7 +288,7 @@ class Dataset:
         i = i % len(self)
         view_state, label = self.masks(i)
         sample: Sample = {
-            "sample_id": self.samples.column("sample_id")[i].as_py(),
+            "sample_id": self.samples.value(i, "sample_id"),
             "points": self.centres(self.keys(i, "points")),
             "observed": self.centres(self.keys(i, "observed")),
             "view_state": mask_bits(view_state, self.num_views),

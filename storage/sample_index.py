@@ -20,8 +20,17 @@ import pyarrow.compute as pc
 
 from schemas.index import INDEX_SCHEMAS
 from storage.location import Location, damaged
-from storage.manifest import Manifest, read_samples, read_samples_column, read_samples_row
+from storage.manifest import (
+    Manifest,
+    count_values,
+    read_samples,
+    read_samples_column,
+    read_samples_group,
+    read_samples_row,
+)
 
+KEPT_GROUPS = 8
+"""Row groups of a column a manifest reader keeps for single values (`ManifestColumns.value`)."""
 Span = tuple[str, int, int]
 """Where a packed task's shard lies: the pack file, the offset and the size of its ZIP there."""
 
@@ -35,6 +44,14 @@ class Columns(Protocol):
 
     def row(self, position: int) -> dict[str, Any]:
         """Every column of one row."""
+        ...
+
+    def value(self, position: int, name: str) -> Any:
+        """One column of one row."""
+        ...
+
+    def counts(self, name: str) -> dict[Any, int]:
+        """How many rows hold each value of a column."""
         ...
 
     @property
@@ -56,6 +73,12 @@ class TableColumns:
     def row(self, position: int) -> dict[str, Any]:
         return dict(self.index.slice(position, 1).to_pylist()[0])
 
+    def value(self, position: int, name: str) -> Any:
+        return self.index.column(name)[position].as_py()
+
+    def counts(self, name: str) -> dict[Any, int]:
+        return _counted(self.index.column(name))
+
     @property
     def names(self) -> list[str]:
         return list(self.index.column_names)
@@ -70,6 +93,12 @@ class ManifestColumns:
     manifest: Manifest
     tail: pa.Table | None = None
     """The index rows of the tasks committed since the manifest was written (None: none)."""
+    _groups: dict[str, dict[tuple[int, int], pa.Array]] = field(default_factory=dict, repr=False, compare=False)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["_groups"] = {}  # read again where it travels
+        return state
 
     def column(self, name: str) -> pa.ChunkedArray:
         if name not in self.names:
@@ -82,6 +111,31 @@ class ManifestColumns:
     def table(self) -> pa.Table:
         stored = read_samples(self.location, self.manifest)
         return stored if self.tail is None else pa.concat_tables([stored, self.tail]).combine_chunks()
+
+    def counts(self, name: str) -> dict[Any, int]:
+        found = count_values(self.location, self.manifest, name)
+        if self.tail is not None:
+            for value, count in _counted(self.tail.column(name)).items():
+                found[value] = found.get(value, 0) + count
+        return found
+
+    def value(self, position: int, name: str) -> Any:
+        """One column of one row, from the row group that holds it (the last few read are kept: a reader
+        walking a shard's samples reads each group once)."""
+        if position >= self.manifest.num_samples and self.tail is not None:
+            return self.tail.column(name)[position - self.manifest.num_samples].as_py()
+        groups = self._groups.setdefault(name, {})
+        for (start, stop), values in groups.items():
+            if start <= position < stop:
+                return values[position - start].as_py()
+        found = read_samples_group(self.location, self.manifest, position, name)
+        if found is None:
+            raise IndexError(f"row {position} outside the index")
+        (start, stop), values = found
+        if len(groups) >= KEPT_GROUPS:
+            groups.pop(next(iter(groups)))
+        groups[(start, stop)] = values
+        return values[position - start].as_py()
 
     def row(self, position: int) -> dict[str, Any]:
         """One row, reading only the row group that holds it."""
@@ -126,8 +180,9 @@ class SampleIndex:
     def column_names(self) -> list[str]:
         return self.source.names
 
-    def column(self, name: str) -> pa.ChunkedArray:
-        """Index column ``name`` of the held samples (read once)."""
+    def column(self, name: str, keep: bool = True) -> pa.ChunkedArray:
+        """Index column ``name`` of the held samples (read once; ``keep=False``: not kept, for a caller
+        that keeps its own copy)."""
         found = self._columns.get(name)
         if found is None:
             if self._table is not None:
@@ -135,8 +190,24 @@ class SampleIndex:
             else:
                 whole = self.source.column(name)
                 found = whole if self.positions is None else whole.take(pa.array(self.positions))
-            self._columns[name] = found
+            if keep:
+                self._columns[name] = found
         return found
+
+    def value(self, i: int, name: str) -> Any:
+        """Index column ``name`` of held sample ``i`` (its row group's when read from a manifest)."""
+        found = self._columns.get(name)
+        if found is not None:
+            return found[i].as_py()
+        if self._table is not None:
+            return self._table.column(name)[i].as_py()
+        return self.source.value(int(i if self.positions is None else self.positions[i]), name)
+
+    def counts(self, name: str) -> dict[Any, int]:
+        """How many held samples hold each value of column ``name``, sorted by value (the whole dataset's
+        read a row group at a time, a selection's from the column)."""
+        found = self.source.counts(name) if self.positions is None else _counted(self.column(name))
+        return dict(sorted(found.items()))
 
     def row(self, i: int) -> dict[str, Any]:
         """Every index column of held sample ``i`` (from its row group alone when read from a manifest)."""
@@ -172,14 +243,19 @@ class SampleIndex:
         return [group.astype(np.int64) for group in np.split(order, bounds)]
 
 
+def _counted(column: pa.ChunkedArray) -> dict[Any, int]:
+    counted = pc.value_counts(column)
+    return dict(zip(counted.field("values").to_pylist(), counted.field("counts").to_pylist(), strict=True))
+
+
 def from_tasks(location: Location, tasks: pa.Table, source: Columns, packed: bool) -> SampleIndex:
     """The index of a manifest's tasks (`storage.manifest.TASKS_SCHEMA`, in sample order): each task's
     samples consecutive, in shard row order."""
     counts = numpy_of(tasks.column("num_samples")).astype(np.int64)
     shards = tasks.column("shard").to_pylist()
     codes = np.repeat(np.arange(len(shards), dtype=np.int32), counts)
-    starts = np.repeat(np.cumsum(counts) - counts, counts)
-    rows = (np.arange(int(counts.sum()), dtype=np.int64) - starts).astype(np.int32)
+    rows = np.arange(int(counts.sum()), dtype=np.int32)  # int32 throughout: 4 bytes a sample
+    rows -= np.repeat((np.cumsum(counts) - counts).astype(np.int32), counts)
     spans: dict[str, Span] = {}
     if packed:
         for shard, pack, offset, size in zip(

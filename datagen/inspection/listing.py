@@ -105,6 +105,26 @@ def failed_tasks(dataset: Dataset, committed: set[str]) -> list[TaskRow]:
 
 
 def _index_totals(dataset: Dataset) -> dict[str, dict[str, Any]]:
+    """Samples and summed points per task id: from the manifest's tasks table and one numeric column
+    (points summed by the samples' task), else grouped over the index columns."""
+    tasks = dataset.task_table()
+    if tasks is not None and dataset.samples.positions is None:
+        counts = np.asarray(tasks.column("num_samples").to_pylist(), dtype=np.int64)
+        names = tasks.column("object_name").to_pylist()
+        if all(name is not None for name, count in zip(names, counts.tolist(), strict=True) if count):
+            points = np.bincount(dataset.samples.codes, weights=dataset.values("num_points"), minlength=tasks.num_rows)
+            ids, rotations = tasks.column("task_id").to_pylist(), tasks.column("rotation").to_pylist()
+            return {
+                task: {"object_name": name, "rotation": rotation, "samples": int(count), "points": int(total)}
+                for task, name, rotation, count, total in zip(
+                    ids, names, rotations, counts.tolist(), points.tolist(), strict=True
+                )
+                if count
+            }
+    return _grouped_totals(dataset)
+
+
+def _grouped_totals(dataset: Dataset) -> dict[str, dict[str, Any]]:
     """Samples and summed points per task id, in one pass over the index columns."""
     columns = ["task_id", "object_name", "rotation", "num_points"]
     # use_threads=False: pyarrow's thread pool must not outlive the command (it aborts at exit).

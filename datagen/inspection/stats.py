@@ -210,46 +210,66 @@ def _counts(values: npt.NDArray[Any]) -> dict[int, int]:
     return {int(v): int(c) for v, c in zip(found.tolist(), counts.tolist(), strict=True)}
 
 
-def _string_counts(column: pa.ChunkedArray) -> dict[str, int]:
-    """Samples per value of a string column, sorted by value (counted by pyarrow, never listed row by row)."""
-    counted = pc.value_counts(column)
-    pairs = zip(counted.field("values").to_pylist(), counted.field("counts").to_pylist(), strict=True)
-    return dict(sorted(pairs))
-
-
 def _per_task(dataset: Dataset) -> list[TaskCount]:
-    """Samples per (object name, rotation), sorted."""
-    table = pa.table({"object_name": dataset.column("object_name"), "rotation": dataset.column("rotation")})
-    grouped = table.group_by(["object_name", "rotation"], use_threads=False).aggregate([("rotation", "count")])
-    rows = zip(*(grouped.column(c).to_pylist() for c in ("object_name", "rotation", "rotation_count")), strict=True)
+    """Samples per (object name, rotation), sorted: from the manifest's tasks table when it names every
+    task's object, else counted over the index columns."""
+    tasks = dataset.task_table()
+    if tasks is not None and _names_every_object(tasks) and dataset.samples.positions is None:
+        table = tasks.filter(pc.greater(tasks.column("num_samples"), 0)).select(
+            ["object_name", "rotation", "num_samples"]
+        )
+        grouped = table.group_by(["object_name", "rotation"], use_threads=False).aggregate([("num_samples", "sum")])
+        columns = ("object_name", "rotation", "num_samples_sum")
+    else:
+        table = pa.table({"object_name": dataset.column("object_name"), "rotation": dataset.column("rotation")})
+        grouped = table.group_by(["object_name", "rotation"], use_threads=False).aggregate([("rotation", "count")])
+        columns = ("object_name", "rotation", "rotation_count")
+    rows = zip(*(grouped.column(c).to_pylist() for c in columns), strict=True)
     return [TaskCount(name, int(rotation), int(count)) for name, rotation, count in sorted(rows)]
+
+
+def _names_every_object(tasks: pa.Table) -> bool:
+    """Whether every task with samples names its object (a manifest written before the table held them
+    does not)."""
+    with_samples = tasks.filter(pc.greater(tasks.column("num_samples"), 0))
+    return with_samples.column("object_name").null_count == 0
+
+
+def _per_object(dataset: Dataset, per_task: list[TaskCount]) -> dict[str, int]:
+    """Samples per object name, sorted."""
+    counts: dict[str, int] = {}
+    for task in per_task:
+        counts[task.object_name] = counts.get(task.object_name, 0) + task.samples
+    return dict(sorted(counts.items()))
 
 
 def dataset_stats(dataset: Dataset) -> DatasetStats:
     """Statistics of every committed sample, plus the failed tasks (from the failure records). Column by
     column, counted in numpy and pyarrow: about a second a million samples, a few columns in memory."""
-    case_sizes = dataset.values("case_size").astype(np.int64)
-    label_sizes = dataset.values("label_size").astype(np.int64)
+    case_sizes = dataset.values("case_size")
+    label_sizes = dataset.values("label_size")
     histogram: dict[int, dict[int, int]] = {}
-    pairs, counts = np.unique(np.stack([case_sizes, label_sizes], axis=1), axis=0, return_counts=True)
-    for (case_size, label_size), count in zip(pairs.tolist(), counts.tolist(), strict=True):
-        histogram.setdefault(int(case_size), {})[int(label_size)] = int(count)
-    points = dataset.values("num_points").astype(np.int64)
-    seconds = dataset.values("solver_seconds").astype(np.float64)
+    width = int(label_sizes.max(initial=0)) + 1  # one count per (case size, label size), no sort of millions
+    pairs = np.bincount(case_sizes.astype(np.int64) * width + label_sizes, minlength=width)
+    for key in np.flatnonzero(pairs).tolist():
+        histogram.setdefault(key // width, {})[key % width] = int(pairs[key])
+    points = dataset.values("num_points")
+    seconds = dataset.values("solver_seconds")
     records = dataset.task_records()
     committed = {record.task_id for record in records}
+    per_task = _per_task(dataset)
     return DatasetStats(
         url=dataset.url,
         samples=len(dataset),
         committed_tasks=len(committed),
-        samples_per_object=_string_counts(dataset.column("object_name")),
-        samples_per_task=_per_task(dataset),
-        cases_per_case_size=_counts(case_sizes),
+        samples_per_object=_per_object(dataset, per_task),
+        samples_per_task=per_task,
+        cases_per_case_size={size: sum(labels.values()) for size, labels in histogram.items()},
         label_sizes=histogram,
         empty_labels=int(np.count_nonzero(dataset.values("empty_label"))),
         points_percentiles=percentiles(points),
         solver_seconds_percentiles=percentiles(seconds),
-        solver_proofs=_string_counts(dataset.column("solver_proof")),
+        solver_proofs=dataset.counts("solver_proof"),
         ambiguity=ambiguity_stats(dataset),
         failed=[FailedTask(t.task_id, t.object_name, t.origin, t.message) for t in failed_tasks(dataset, committed)],
         points_per_sample=points,
