@@ -41,7 +41,7 @@ SIZES = (1_000, 10_000, 100_000)
 HERE = Path(__file__).parent
 PROBE = HERE / "probe.py"
 DATASETS = HERE / "datasets.py"
-DEADLINE = 900.0
+DEADLINE = 600.0
 """Seconds a row may run before it is stopped (and reported as stopped, with its partial figure)."""
 
 ROWS: tuple[tuple[str, str], ...] = (
@@ -108,6 +108,7 @@ def make_dataset(label: str, source: Path, size: int, work: Path, env: dict[str,
     """The tree's dataset of ``size`` tasks (made once: its source job, then the replicas)."""
     origin = work / label / "source"
     url = work / label / f"tasks-{size}"
+    (work / label).mkdir(parents=True, exist_ok=True)
     if not (origin / "dataset.json").exists():
         run_measured(
             [sys.executable, str(DATASETS), "source", "--out", str(origin)],
