@@ -285,6 +285,7 @@ def plot(
     panels = [p for p in panels if p[1]]
     figure, axes = plt.subplots(len(panels), 2, figsize=(13, 5 * len(panels)), squeeze=False)
     styles = ["--", "-", ":", "-."]
+    palette = plt.get_cmap("tab20")  # a colour a row: more rows than the default cycle's 10
     for row, (title, results, rows, unit) in enumerate(panels):
         for index, label in enumerate(sorted(results, key=list(results).index)):
             for colour, (name, text) in enumerate(rows):
@@ -296,7 +297,7 @@ def plot(
                 if not points:
                     continue
                 xs = [n for n, _ in points]
-                kwargs = {"color": f"C{colour}", "linestyle": styles[index % len(styles)], "marker": "o"}
+                kwargs = {"color": palette(colour % 20), "linestyle": styles[index % len(styles)], "marker": "o"}
                 axes[row][0].plot(xs, [max(f[0], 1e-3) for _, f in points], label=f"{label}: {text}", **kwargs)
                 axes[row][1].plot(xs, [f[2] for _, f in points], label=f"{label}: {text}", **kwargs)
         for column, what in enumerate(("CPU seconds", "peak MiB")):

@@ -179,7 +179,7 @@ def machine_line() -> str:
         for line in Path("/proc/meminfo").read_text().splitlines():
             if line.startswith("MemTotal"):
                 memory = f", {int(line.split()[1]) / 1024**2:.1f} GiB memory"
-    load = ", load average {:.2f} {:.2f} {:.2f}".format(*os.getloadavg())
+    load = ", load average {:.2f} {:.2f} {:.2f} as the report was written".format(*os.getloadavg())
     return f"{model}, {os.cpu_count()} cores{memory}{load}"
 
 
