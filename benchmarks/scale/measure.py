@@ -40,7 +40,8 @@ class Measurement:
     cpu: float
     """User + system CPU seconds of the process (and of its children it waited for)."""
     peak_mb: float
-    """Largest resident set of the process (or of a waited-for child, whichever was larger), MiB."""
+    """Largest resident set of the process (or of a waited-for child, whichever was larger), MiB. Linux
+    counts the spawning process's resident set at the fork in it, so the harness itself stays small."""
     rc: int
     """Exit status; negative: killed by that signal."""
     stopped: bool = False
@@ -76,7 +77,14 @@ def run_measured(
         report.unlink()
     started = time.perf_counter()
     with stdout.open("wb") as sink:
-        process = subprocess.Popen(list(args), cwd=cwd, env=dict(env), stdout=sink, stderr=subprocess.STDOUT)
+        process = subprocess.Popen(
+            list(args),
+            cwd=cwd,
+            env=dict(env),
+            stdout=sink,
+            stderr=subprocess.STDOUT,
+            preexec_fn=_interruptible,
+        )
     stopped = threading.Event()
 
     def stop() -> None:
@@ -111,6 +119,13 @@ def run_measured(
         stopped=stopped.is_set(),
         extra=extra,
     )
+
+
+def _interruptible() -> None:
+    """In the child before it runs the command: SIGINT back to its default. A shell starts background
+    commands with SIGINT ignored, and an ignored signal stays ignored across exec (Python then installs
+    no KeyboardInterrupt handler), so a harness run with ``&`` could not stop its commands cleanly."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _exited(pid: int, seconds: float) -> bool:
