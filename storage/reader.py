@@ -132,8 +132,12 @@ class Dataset:
         """Every index column of sample ``i`` (without reading the whole index)."""
         return self.samples.row(i)
 
-    def values(self, name: str) -> npt.NDArray[Any]:
-        """One index column of every sample as numpy (read and converted once)."""
+    def values(self, name: str, keep: bool = True) -> npt.NDArray[Any]:
+        """One index column of every sample as numpy (read and converted once; ``keep=False``: not kept,
+        for a caller that reads a column of millions once)."""
+        found = self._columns.get(name)
+        if found is None and not keep:
+            return numpy_of(self.samples.column(name, keep=False))
         return self._column(name)
 
     def counts(self, name: str) -> dict[Any, int]:

@@ -3,6 +3,7 @@ records alone (no shard is opened), so they stay fast on tens of thousands of sa
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -132,25 +133,36 @@ class NextViewStats:
 
 
 def next_view_stats(dataset: Dataset) -> NextViewStats | None:
-    """`NextViewStats` from the index alone; None for a dataset without them."""
+    """`NextViewStats` from the index alone; None for a dataset without them. Columns read once and not
+    kept, one per-size group at a time: a few columns of millions at the peak."""
     if "best_view" not in dataset.samples.column_names:
         return None
-    best = dataset.values("best_view").astype(np.int64)
+    best = dataset.values("best_view", keep=False)
     has_next = best >= 0
-    ties = dataset.values("best_view_ties")[has_next]
+    best_view_counts = _counts(best[has_next])
+    del best
+    ties = dataset.values("best_view_ties", keep=False)[has_next]
     sizes = dataset.values("case_size")[has_next]
-    visible = dataset.values("visible_size")[has_next].astype(np.float64)
-    gains = dataset.values("best_gain")[has_next].astype(np.float64)
-    share = np.divide(gains, visible, out=np.zeros_like(gains), where=visible > 0)
-    groups = {str(int(size)): ties[sizes == size] for size in np.unique(sizes)} | {"all": ties}
+    share = dataset.values("best_gain", keep=False)[has_next].astype(np.float64)
+    visible = dataset.values("visible_size", keep=False)[has_next]
+    np.divide(share, visible, out=share, where=visible > 0)
+    share[visible <= 0] = 0.0
+    del visible
     histogram, _ = np.histogram(share, bins=GAIN_BINS, range=(0.0, 1.0))
     return NextViewStats(
-        unique={name: float(np.mean(found == 1)) for name, found in groups.items() if found.size},
+        unique=_by_size(sizes, ties, lambda found: float(np.mean(found == 1))),
         best_gain_share=percentiles(share),
         best_gain_histogram=[int(count) for count in histogram],
-        best_view_counts=_counts(best[has_next]),
+        best_view_counts=best_view_counts,
         no_next_view=int(np.count_nonzero(~has_next)),
     )
+
+
+def _by_size(sizes: npt.NDArray[Any], values: npt.NDArray[Any], statistic: Callable[[Any], float]) -> dict[str, float]:
+    """``statistic`` of ``values`` per case size (str keys, ascending) and of all of them (``all``),
+    each size's values gathered in turn."""
+    found = {str(int(size)): statistic(values[sizes == size]) for size in np.unique(sizes)}
+    return found | ({"all": statistic(values)} if values.size else {})
 
 
 @dataclass(frozen=True)
@@ -182,15 +194,15 @@ def ambiguity_stats(dataset: Dataset) -> LabelAmbiguityStats | None:
     """`LabelAmbiguityStats` from the index alone; None for a dataset without them."""
     if not dataset.has_ambiguity:
         return None
-    labelled = ~dataset.values("empty_label").astype(bool)
-    counts = dataset.values("min_covers")[labelled]
+    labelled = dataset.values("empty_label", keep=False) == 0
+    counts = dataset.values("min_covers", keep=False)[labelled]
     sizes = dataset.values("case_size")[labelled]
-    support = np.bitwise_count(dataset.values("label_support")[labelled]).astype(np.int64)
-    groups = {str(int(size)): counts[sizes == size] for size in np.unique(sizes)} | {"all": counts}
+    support = np.bitwise_count(dataset.values("label_support", keep=False)[labelled])
+    capped = int(np.count_nonzero(dataset.values("min_covers_exact", keep=False)[labelled] == 0))
     return LabelAmbiguityStats(
-        unique={name: float(np.mean(found == 1)) for name, found in groups.items() if found.size},
-        median_covers={name: float(np.median(found)) for name, found in groups.items() if found.size},
-        capped=int(np.count_nonzero(~dataset.values("min_covers_exact").astype(bool)[labelled])),
+        unique=_by_size(sizes, counts, lambda found: float(np.mean(found == 1))),
+        median_covers=_by_size(sizes, counts, lambda found: float(np.median(found))),
+        capped=capped,
         count_percentiles=percentiles(counts),
         support_size_percentiles=percentiles(support),
     )

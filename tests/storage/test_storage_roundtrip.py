@@ -137,6 +137,17 @@ def test_index_columns_equal_the_payload(dataset_url: str) -> None:
         assert set(payload.index_rows) | {"shard", "row", "attempt_id"} == set(INDEX_SCHEMA.names)
 
 
+def test_a_column_read_once_is_the_kept_one(dataset_url: str) -> None:
+    """``values(name, keep=False)`` (a command reading a column of millions once) gives the kept column's
+    values without keeping them; a column already kept is handed out as it is."""
+    ds = open_dataset(dataset_url)
+    once = ds.values("num_points", keep=False)
+    assert "num_points" not in ds._columns
+    kept = ds.values("num_points")
+    np.testing.assert_array_equal(once, kept)
+    assert once.dtype == kept.dtype and ds.values("num_points", keep=False) is kept
+
+
 def test_dataset_info_round_trip(dataset_url: str) -> None:
     info = read_info(open_location(dataset_url))
     assert info == fx.dataset_info()
