@@ -38,11 +38,11 @@ REFINALISE_FIX = "finish the job (`datagen resume JOB`) to finalise the index ag
 
 
 def check_fragments(
-    location: Location, commits: Sequence[CommitRecord], schema_version: int | None
+    location: Location, commits: Sequence[CommitRecord], schema_version: int | None, keep: bool = True
 ) -> tuple[list[Problem], list[pa.Table]]:
-    """Problems of the committed index fragments (re-running the task mends each), and the fragments
-    with the columns of the dataset's layout version (None, when dataset.json is unreadable: the first
-    fragment's)."""
+    """Problems of the committed index fragments (re-running the task mends each), and (``keep``) the
+    fragments' `CHECKED_COLUMNS`, of the dataset's layout version (None, when dataset.json is unreadable:
+    the first fragment's): what the row-by-row checks read when no finalised index covers the commits."""
     found: list[Problem] = []
     tables: list[pa.Table] = []
     for record in commits:
@@ -64,7 +64,8 @@ def check_fragments(
             continue
         if fragment.num_rows != record.num_samples:
             found.append(problem(f"{fragment.num_rows} rows for {record.num_samples} samples"))
-        tables.append(fragment.cast(INDEX_SCHEMAS[version]))
+        if keep:
+            tables.append(fragment.cast(INDEX_SCHEMAS[version]).select(list(CHECKED_COLUMNS)))
     return found, tables
 
 

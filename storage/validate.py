@@ -579,10 +579,11 @@ def _check_index(
     else the merged fragments). A packed dataset's fragments are copies of its samples table inside the
     packs: the table is checked."""
     checked = commits if chosen is None else chosen
-    found, fragments = check_fragments(location, checked, schema_version) if not packed else ([], [])
+    index_found, finalised = check_finalised_index(location, commits)
+    keep = finalised is None  # the fragments' rows are checked only where readers would merge them
+    found, fragments = check_fragments(location, checked, schema_version, keep) if not packed else ([], [])
     yield from found
-    found, finalised = check_finalised_index(location, commits)
-    yield from found
+    yield from index_found
     if finalised is not None:
         index = finalised
     elif fragments:
