@@ -97,6 +97,8 @@ DEFAULT_COVER_CAP = 1024
 LATEST_POCO_VERSION = 2
 """The newest ``poco_version`` whose labels were judged against version 1's (docs/pipeline.md section
 4.1): what a new config uses unless told."""
+NEWEST_POCO_VERSION = 3
+"""The newest ``poco_version`` there is; those above `LATEST_POCO_VERSION` are chosen by name only."""
 
 FIELDS_ADDED_LATER: dict[str, object] = {
     "label_tie_break": "index",
@@ -154,13 +156,14 @@ class GenerationConfig(_Frozen):
     poco_threshold: float = Field(0.65, gt=0.0, lt=1.0, allow_inf_nan=False)
     """p(inside) above which a queried band key is kept (tuned on training shapes)."""
     finetune_steps: int = Field(0, ge=0, le=1000, strict=True)
-    poco_version: int = Field(LATEST_POCO_VERSION, ge=1, le=LATEST_POCO_VERSION, strict=True)
+    poco_version: int = Field(LATEST_POCO_VERSION, ge=1, le=NEWEST_POCO_VERSION, strict=True)
     """Which computation of the ``poco`` refiner defines R(O) (`datagen.pipeline.refine.poco.refiner`):
     1, the original (every dataset made before the field, which reads as 1); 2, the decoder's
     neighbour table from pykdtree instead of scipy's cKDTree, ~13 % less refinement CPU. The two
     searches break ties between equidistant input points differently, which flips ~1 % of the keys
-    of R(O). A new config takes the newest judged version (`LATEST_POCO_VERSION`); a stored one keeps
-    its own."""
+    of R(O); 3, every neighbour table with one defined answer (nearest first, ties by index:
+    `spatial.knn_ordered`), searched on the refiner's device, so a GPU's R(O) is the CPU's. A new
+    config takes the newest judged version (`LATEST_POCO_VERSION`); a stored one keeps its own."""
     poisson_depth: int = Field(8, ge=5, le=12, strict=True)
     """Octree depth of the ``poisson`` refiner (2**depth cells across the observed cloud's box)."""
     # Section 5: filter

@@ -417,6 +417,55 @@ def test_knn_matches_brute_force(backend: KnnBackend) -> None:
     assert knn(source[0], target[0], 3, backend=backend).shape == (300, 3)
 
 
+def _ordered_by_hand(source: torch.Tensor, target: torch.Tensor, k: int) -> np.ndarray:
+    """(distance, index) order by Python's own sort over exact float64 sums: the definition, slowly."""
+    src, dst = source.double().numpy(), target.double().numpy()
+    out = np.empty((dst.shape[1], min(k, src.shape[1])), dtype=np.int64)
+    for j in range(dst.shape[1]):
+        keys = []
+        for i in range(src.shape[1]):
+            dx, dy, dz = (dst[:, j] - src[:, i]).tolist()
+            keys.append(((dx * dx + dy * dy) + dz * dz, i))
+        out[j] = [i for _, i in sorted(keys)[: out.shape[1]]]
+    return out
+
+
+def test_ordered_knn_is_one_answer_on_every_path_with_ties() -> None:
+    """Grid clouds (exact ties everywhere, duplicate points too): the CPU tree path, the brute path a GPU
+    runs (here on the CPU) and a hand sort by (squared distance, index) give the same tables, order
+    included; random clouds agree with the other exact backends' sets."""
+    from datagen.pipeline.refine.poco.spatial import _knn_ordered_brute, _knn_ordered_tree, knn_ordered
+
+    g = torch.Generator().manual_seed(5)
+    for cells, n_source, n_target, k in ((4, 300, 200, 32), (6, 200, 150, 16), (3, 40, 60, 1), (8, 90, 50, 64)):
+        source = torch.randint(0, cells, (2, 3, n_source), generator=g).float() * 0.25 - 0.5
+        target = torch.randint(0, 2 * cells, (2, 3, n_target), generator=g).float() * 0.125 - 0.5
+        tree, brute = _knn_ordered_tree(source, target, k), _knn_ordered_brute(source, target, k)
+        assert tree.shape == (2, n_target, min(k, n_source)) and torch.equal(tree, brute)
+        assert torch.equal(knn(source, target, k, backend="ordered"), tree)
+        assert torch.equal(knn_ordered(source, target, k), tree)
+        for b in range(2):
+            assert (tree[b].numpy() == _ordered_by_hand(source[b], target[b], k)).all()
+    source, target = torch.rand(1, 3, 2000, generator=g), torch.rand(1, 3, 700, generator=g)
+    ordered = knn_ordered(source, target, 16)
+    reference = knn(source, target, 16, backend="scipy")
+    assert (np.sort(ordered.numpy(), axis=2) == np.sort(reference.numpy(), axis=2)).all()
+    assert torch.equal(knn_ordered(source, source, 1)[0, :, 0], torch.arange(2000))
+
+
+def test_ordered_knn_is_the_same_whichever_tree_proposes(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The tree only proposes candidates: scipy's cKDTree (no pykdtree installed) gives pykdtree's tables."""
+    from datagen.pipeline.refine.poco import spatial
+
+    g = torch.Generator().manual_seed(9)
+    source = torch.randint(0, 5, (1, 3, 400), generator=g).float() * 0.2
+    target = torch.randint(0, 10, (1, 3, 300), generator=g).float() * 0.1
+    first = spatial.knn_ordered(source, target, 24)
+    installed = spatial.pykdtree_available()
+    monkeypatch.setattr(spatial, "pykdtree_available", lambda: not installed)
+    assert torch.equal(spatial.knn_ordered(source, target, 24), first)
+
+
 def test_spatial_tables() -> None:
     pts = sphere_points(3000, 14, batch=2)
     queries = box_queries(500, 15, batch=2)

@@ -233,6 +233,7 @@ CHANGES = [
     {"poco_threshold": 0.6},
     {"finetune_steps": 10},
     {"poco_version": 1},
+    {"poco_version": 3},
     {"poisson_depth": 9},
     {"alpha": 11},
     {"empty_labels": "drop"},
@@ -589,3 +590,17 @@ def test_poco_version_changes_only_a_poco_datasets_identity() -> None:
             config_from_dict({"refiner": refiner, "poco_version": 2}).config_hash()
         )
     assert GenerationConfig(poco_version=1).config_hash() != GenerationConfig(poco_version=2).config_hash()
+    assert GenerationConfig(poco_version=3).config_hash() != GenerationConfig(poco_version=2).config_hash()
+
+
+def test_poco_version_3_is_chosen_by_name_and_no_version_past_it_exists() -> None:
+    """Version 3 (ordered neighbour tables) is there to be asked for; a new config still takes the newest
+    judged one, and a version that does not exist is refused by the config."""
+    from pydantic import ValidationError
+
+    from schemas.config import LATEST_POCO_VERSION, NEWEST_POCO_VERSION
+
+    assert NEWEST_POCO_VERSION == 3 > LATEST_POCO_VERSION == GenerationConfig().poco_version
+    assert GenerationConfig(poco_version=3).poco_version == 3
+    with pytest.raises(ValidationError, match="poco_version"):
+        GenerationConfig(poco_version=4)

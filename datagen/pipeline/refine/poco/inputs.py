@@ -119,11 +119,15 @@ def _on_device(
     device: torch.device | str,
     knn_backend: KnnBackend = "auto",
 ) -> tuple[Tensor, Tensor, dict[str, Tensor], Tensor]:
-    """(points, features, tables, queries) on ``device``; the neighbour tables are built on the CPU,
-    the encoder's by scipy's cKDTree, the decoder's (``proj_indices``) by ``knn_backend`` ("auto" is
-    cKDTree there too; "pykdtree" for ``poco_version`` 2)."""
-    tables = model.tables(points.cpu(), generator)
-    tables["proj_indices"] = model.query_knn(points.cpu(), queries.cpu(), backend=knn_backend)
+    """(points, features, tables, queries) on ``device``. The sampling runs on the CPU; with
+    ``knn_backend`` "ordered" (``poco_version`` 3) every neighbour table is `spatial.knn_ordered`'s,
+    searched on ``device``; otherwise on the CPU, the encoder's by scipy's cKDTree, the decoder's
+    (``proj_indices``) by ``knn_backend`` ("auto" is cKDTree there too; "pykdtree" for version 2)."""
+    if knn_backend == "ordered":
+        tables = model.tables(points.cpu(), generator, queries.cpu(), backend="ordered", knn_device=device)
+    else:
+        tables = model.tables(points.cpu(), generator)
+        tables["proj_indices"] = model.query_knn(points.cpu(), queries.cpu(), backend=knn_backend)
     tables = {k: v.to(device) for k, v in tables.items()}
     points, directions, queries = points.to(device), directions.to(device), queries.to(device)
     features = model.features(points, directions if model.preset.uses_directions else None)

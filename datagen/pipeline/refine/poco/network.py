@@ -422,6 +422,7 @@ class PocoModel(nn.Module):
         generator: GeneratorLike = None,
         queries: Tensor | None = None,
         backend: KnnBackend = "auto",
+        knn_device: torch.device | str | None = None,
     ) -> dict[str, Tensor]:
         """`spatial_tables` with this preset's neighbour counts and sampling ratio."""
         p = self.preset
@@ -433,10 +434,11 @@ class PocoModel(nn.Module):
             decoder_k=p.decoder_k,
             ratio=p.sampling_ratio,
             backend=backend,
+            knn_device=knn_device,
         )
 
     def query_knn(self, points: Tensor, queries: Tensor, backend: KnnBackend = "auto") -> Tensor:
-        """Decoder table (B, M, decoder_k): each query's nearest input points."""
+        """Decoder table (B, M, decoder_k): each query's nearest input points (where they are)."""
         return spatial.knn(points, queries, self.preset.decoder_k, backend=backend)
 
     def features(self, points: Tensor, directions: Tensor | None = None) -> Tensor:

@@ -28,7 +28,10 @@ the decoder's table (each query's K nearest inputs, the largest search) with pyk
 of queries have input points at exactly equal distances (key centres on a grid) and each search
 breaks such ties its own way, 8-15 % of queries at the K-th neighbour; version 2 flips ~0.8 % of the
 keys of R(O) (measured on the built-in mug). The encoder's tables stay cKDTree's: their ties move
-every latent, and pykdtree there would flip ~7 % for another 2 % of CPU.
+every latent, and pykdtree there would flip ~7 % for another 2 % of CPU. Version 3 gives every table
+one defined answer (nearest first, equal distances by index, `spatial.knn_ordered`) and searches on
+the refiner's device: a k-d tree's candidates ordered exactly on the CPU, every distance on a GPU, the
+same tables both ways, so a GPU run's R(O) is the CPU's up to the network's own float rounding.
 
 Optional test-time fine-tuning (``finetune_steps`` > 0; AIR used 10, the default here is 0): a copy
 of the network takes that many Adam steps (lr 1e-3) on the observation itself, with the observed key
@@ -68,9 +71,10 @@ from schemas.config import GenerationConfig
 
 BUILTIN_WEIGHTS = Path(str(resources.files("datagen"))) / "data" / "poco_small.pt"
 FINETUNE_QUERIES = 4096
-KNN_BACKENDS: dict[int, KnnBackend] = {1: "auto", 2: "pykdtree"}
-"""The decoder table's neighbour search of each ``poco_version`` ("auto" is scipy's cKDTree: tables
-are built on the CPU)."""
+KNN_BACKENDS: dict[int, KnnBackend] = {1: "auto", 2: "pykdtree", 3: "ordered"}
+"""The neighbour search of each ``poco_version``: versions 1 and 2 name the decoder table's ("auto" is
+scipy's cKDTree; the encoder's are cKDTree's, every table built on the CPU); version 3's "ordered" is
+every table's, on the refiner's device (`spatial.knn_ordered`)."""
 
 
 def weights_sha256(path: Path) -> str:
@@ -120,7 +124,7 @@ class PocoRefiner:
             yield
             return
         with ExitStack() as stack:
-            if self.knn_backend == "pykdtree":
+            if self.knn_backend == "pykdtree" or (self.knn_backend == "ordered" and pykdtree_available()):
                 stack.enter_context(threadpool_limits(limits=torch.get_num_threads(), user_api="openmp"))
             self._inside = True
             try:

@@ -14,13 +14,15 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 import torch
 from torch import Tensor
 
-KnnBackend = Literal["auto", "scipy", "pykdtree", "torch"]
+KnnBackend = Literal["auto", "scipy", "pykdtree", "torch", "ordered"]
 GeneratorLike = torch.Generator | np.random.Generator | int | None
 
 LEVELS = 4
@@ -79,7 +81,8 @@ def knn(
     finds itself. Backends: ``scipy`` (cKDTree, using torch's thread count) and the optional
     ``pykdtree`` (OpenMP threads) run on CPU, ``torch`` (chunked squared distances + topk) runs
     anywhere; ``auto`` picks scipy on CPU and torch on an accelerator.
-    Neighbour order and ties may differ between backends: every consumer is order-invariant over K.
+    Neighbour order and ties may differ between those backends: every consumer is order-invariant over
+    K. ``ordered`` is the one defined answer (`knn_ordered`), the same on every device.
     """
     if source.ndim == 2:
         return knn(source[None], target[None], k, backend=backend, workers=workers)[0]
@@ -98,6 +101,8 @@ def knn(
         # scipy (a declared dependency) on CPU so results never depend on optional installs.
         backend = "scipy" if target.device.type == "cpu" else "torch"
     with torch.no_grad():
+        if backend == "ordered":
+            return knn_ordered(source, target, k)
         if backend == "torch":
             return _knn_torch(source, target, k)
         if backend in ("scipy", "pykdtree"):
@@ -137,6 +142,145 @@ def _knn_torch(source: Tensor, target: Tensor, k: int) -> Tensor:
         d2 = (q * q).sum(-1, keepdim=True) - 2.0 * torch.bmm(q, src.transpose(1, 2)) + src_sq[:, None, :]
         parts.append(torch.topk(d2, k, dim=2, largest=False, sorted=True).indices)
     return torch.cat(parts, dim=1)
+
+
+# --------------------------------------------------------------------------------------------------
+# kNN with one defined answer (refiner version 3)
+
+ORDERED_SPARE = 4
+"""Neighbours a tree fetches beyond k, so that ties across the k-th place are seen and resolved."""
+_TREE_SLACK = 16.0
+"""A tree's distances may be off by a few rounding units of the largest coordinate: a gap between the
+k-th and the farthest fetched candidate wider than this many units proves nothing unfetched can tie."""
+
+
+def ordered_sq_distances(source: Tensor, target: Tensor) -> Tensor:
+    """Squared distances (B, M, N) in float64 as ``(dx*dx + dy*dy) + dz*dz``, each operation its own.
+
+    Float32 coordinates make every difference and square exact in float64, and the two sums are
+    rounded in a fixed order with no fused multiply-add, so every device computes the same bits and a
+    tie is a tie everywhere.
+    """
+    src = source.detach().to(torch.float64)
+    dst = target.detach().to(torch.float64)
+    total: Tensor | None = None
+    for axis in range(src.shape[1]):
+        diff = dst[:, axis, :, None] - src[:, axis, None, :]
+        square = diff * diff
+        total = square if total is None else total + square
+    assert total is not None
+    return total
+
+
+def knn_ordered(source: Tensor, target: Tensor, k: int) -> Tensor:
+    """The k nearest source points of every target, ordered by (squared distance, source index).
+
+    Exact and defined, not just exact: among points at equal distance the lower index comes first, so
+    the answer (order included) is a function of the inputs alone, whatever the device or search. On
+    the CPU a k-d tree proposes k + `ORDERED_SPARE` candidates, ordered exactly, and rows whose ties
+    reach past them ask again for more; on an accelerator the distances are computed in tiles of targets
+    and sorted stably. ``source`` (B, 3, N), ``target`` (B, 3, M); returns (B, M, min(k, N)) int64 on
+    ``target``'s device.
+    """
+    k = min(k, source.shape[2])
+    with torch.no_grad():
+        if target.device.type == "cpu":
+            return _knn_ordered_tree(source, target, k)
+        return _knn_ordered_brute(source, target, k)
+
+
+def _knn_ordered_brute(source: Tensor, target: Tensor, k: int) -> Tensor:
+    """`knn_ordered` by every distance: tiles of targets, a stable sort of each row (ties by index)."""
+    batch, _, n_source = source.shape
+    chunk = max(1, (_MAX_DISTANCES // 2) // max(1, batch * n_source))
+    parts = []
+    for start in range(0, target.shape[2], chunk):
+        d2 = ordered_sq_distances(source, target[:, :, start : start + chunk])
+        parts.append(torch.sort(d2, dim=2, stable=True).indices[:, :, :k])
+    return torch.cat(parts, dim=1) if parts else torch.empty((batch, 0, k), dtype=torch.int64, device=target.device)
+
+
+def _knn_ordered_tree(source: Tensor, target: Tensor, k: int) -> Tensor:
+    """`knn_ordered` on the CPU: a k-d tree's candidates (pykdtree when installed, else scipy's
+    cKDTree), ordered exactly; rows whose ties reach past the candidates fetched are asked again
+    with twice as many (every point at the last). The tree only proposes: the answer is the same
+    whichever tree, and however it rounds."""
+    batch, _, n_source = source.shape
+    out = np.empty((batch, target.shape[2], k), dtype=np.int64)
+    for b in range(batch):
+        src32 = np.ascontiguousarray(source[b].detach().to("cpu", torch.float32).T.numpy())
+        dst32 = np.ascontiguousarray(target[b].detach().to("cpu", torch.float32).T.numpy())
+        src, dst = src32.astype(np.float64), dst32.astype(np.float64)
+        query, unit = _candidate_search(src32)
+        scale = max(float(np.abs(src).max(initial=0.0)), float(np.abs(dst).max(initial=0.0)))
+        slack = _TREE_SLACK * unit * max(scale, np.finfo(np.float64).tiny)
+        rows = np.arange(dst.shape[0])
+        fetch = min(n_source, k + ORDERED_SPARE)
+        while rows.size:
+            candidates = query(dst32[rows], fetch)
+            d2 = _row_sq_distances(src, dst[rows], candidates)
+            candidates, d2 = _by_distance_then_index(candidates, d2)
+            out[b, rows] = candidates[:, :k]
+            if fetch == n_source:
+                break
+            rows = rows[np.sqrt(d2[:, -1]) - np.sqrt(d2[:, k - 1]) <= slack]
+            fetch = min(n_source, fetch * 2)
+    return torch.from_numpy(out).to(target.device)
+
+
+def _candidate_search(
+    src32: npt.NDArray[np.float32],
+) -> tuple[Callable[[npt.NDArray[np.float32], int], npt.NDArray[np.int64]], float]:
+    """A k-nearest query over ``src32`` and the relative rounding unit of the distances it compares."""
+    if pykdtree_available():
+        from pykdtree.kdtree import KDTree
+
+        tree = KDTree(src32.astype(np.float64))
+
+        def query_pykdtree(rows: npt.NDArray[np.float32], fetch: int) -> npt.NDArray[np.int64]:
+            _, found = tree.query(rows.astype(np.float64), k=fetch)
+            return np.asarray(found, dtype=np.int64).reshape(rows.shape[0], fetch)
+
+        return query_pykdtree, float(np.finfo(np.float64).eps)
+    from scipy.spatial import cKDTree
+
+    ctree = cKDTree(src32.astype(np.float64))
+
+    def query_ckdtree(rows: npt.NDArray[np.float32], fetch: int) -> npt.NDArray[np.int64]:
+        _, found = ctree.query(rows.astype(np.float64), k=fetch, workers=torch.get_num_threads())
+        return np.asarray(found, dtype=np.int64).reshape(rows.shape[0], fetch)
+
+    return query_ckdtree, float(np.finfo(np.float64).eps)
+
+
+def _row_sq_distances(
+    src: npt.NDArray[np.float64], dst: npt.NDArray[np.float64], candidates: npt.NDArray[np.int64]
+) -> npt.NDArray[np.float64]:
+    """`ordered_sq_distances` of each target row to its candidates (the same operations, numpy)."""
+    total: npt.NDArray[np.float64] | None = None
+    for axis in range(src.shape[1]):
+        diff = np.subtract(dst[:, axis, None], np.ascontiguousarray(src[:, axis])[candidates])
+        np.multiply(diff, diff, out=diff)
+        total = diff if total is None else np.add(total, diff, out=total)
+    assert total is not None
+    return total
+
+
+def _by_distance_then_index(
+    candidates: npt.NDArray[np.int64], d2: npt.NDArray[np.float64]
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+    """Each row's candidates sorted by (squared distance, index), with their distances. A tree lists
+    them nearly in order, so a stable sort by distance is cheap; only rows with equal distances are
+    sorted again with the index as the second key."""
+    order = np.argsort(d2, axis=1, kind="stable")
+    candidates = np.take_along_axis(candidates, order, axis=1)
+    d2 = np.take_along_axis(d2, order, axis=1)
+    # Equal distances share a rank (its place among the row's distinct distances); one sort of
+    # rank * 2^32 + index then orders the row by (distance, index).
+    rank = np.zeros(d2.shape, dtype=np.int64)
+    np.cumsum(d2[:, 1:] != d2[:, :-1], axis=1, out=rank[:, 1:])
+    again = np.argsort((rank << 32) | candidates, axis=1)
+    return np.take_along_axis(candidates, again, axis=1), d2
 
 
 # --------------------------------------------------------------------------------------------------
@@ -258,6 +402,7 @@ def spatial_tables(
     decoder_k: int = 64,
     ratio: float = 0.25,
     backend: KnnBackend = "auto",
+    knn_device: torch.device | str | None = None,
 ) -> dict[str, Tensor]:
     """Every index table the network needs for ``points`` (B, 3, N), as a dict of int64 tensors.
 
@@ -265,7 +410,9 @@ def spatial_tables(
     sample, with the generator consumed in batch order). ``idsAB`` (B, N_B, K): for each level-B
     point its ``encoder_k`` nearest level-A points (A = B or B-1), or for the upsampling tables
     (A = B+1) its single nearest. ``proj_indices`` (B, M, decoder_k), only when ``queries`` (B, 3, M)
-    is given: each query's nearest input points.
+    is given: each query's nearest input points. The sampling runs where ``points`` are (the CPU, so
+    that its float64 voxel cells are the same everywhere); ``knn_device`` (default: there too) runs the
+    neighbour searches, and the tables come back on ``points``' device.
     """
     if points.ndim != 3 or points.shape[1] != 3:
         raise ValueError(f"spatial_tables expects (B, 3, N) points, got {tuple(points.shape)}")
@@ -279,11 +426,14 @@ def spatial_tables(
             index = torch.stack(picks).to(points.device)
             tables[f"sample{level}"] = index
             current = gather_points(current, index)
-        levels = level_points(points.detach(), tables)
+        home = points.device
+        searched = torch.device(knn_device) if knn_device is not None else home
+        levels = [level.to(searched) for level in level_points(points.detach(), tables)]
         for a, b in CONV_TABLES:
-            tables[f"ids{a}{b}"] = knn(levels[a], levels[b], encoder_k, backend=backend)
+            tables[f"ids{a}{b}"] = knn(levels[a], levels[b], encoder_k, backend=backend).to(home)
         for a, b in UP_TABLES:
-            tables[f"ids{a}{b}"] = knn(levels[a], levels[b], 1, backend=backend)
+            tables[f"ids{a}{b}"] = knn(levels[a], levels[b], 1, backend=backend).to(home)
         if queries is not None:
-            tables["proj_indices"] = knn(points.detach(), queries.detach(), decoder_k, backend=backend)
+            found = knn(levels[0], queries.detach().to(searched), decoder_k, backend=backend)
+            tables["proj_indices"] = found.to(home)
     return tables
