@@ -194,10 +194,19 @@ def _check_samples_tables(
         if table.num_rows != sum(int(t["num_samples"]) for t in own):
             unreadable = True
             continue
-        tables.append(table)
+        tables.append(_compact(table))
     if unreadable or not tables:
         return found, None
-    return found, pa.concat_tables(tables)  # a row in the wrong place is checked row by row as well
+    # A row in the wrong place is checked row by row as well.
+    return found, pa.concat_tables(tables).unify_dictionaries()
+
+
+def _compact(table: pa.Table) -> pa.Table:
+    """``table`` with its task and shard names dictionary-encoded: each repeats once a sample, and
+    millions of samples' copies are most of what the row checks would hold."""
+    for name in ("task_id", "shard"):
+        table = table.set_column(table.schema.get_field_index(name), name, pc.dictionary_encode(table.column(name)))
+    return table
 
 
 CHECKED_COLUMNS = ("sample_id", "task_id", "shard", "row")
