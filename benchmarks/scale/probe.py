@@ -52,12 +52,26 @@ def _sample(url: str) -> Any:
     return dataset[len(dataset) - 1]
 
 
+def _command(*args: str) -> Callable[[str], Any]:
+    """A `datagen` command on the dataset, run in this process (its output to stdout), so that its
+    requests are counted too."""
+
+    def run(url: str) -> Any:
+        from datagen.cli.main import app
+
+        return app([*args, url], standalone_mode=False)
+
+    return run
+
+
 PROBES: dict[str, Callable[[str], Any]] = {
     "floor": lambda url: None,
     "open": _open,
     "sample": _sample,
     "map-style": _map_style,
     "streaming": _streaming,
+    "ls": _command("shards", "ls"),
+    "stats": _command("shards", "stats"),
 }
 """The operations, by name (`floor`: the imports and start-up every probe pays, nothing more)."""
 

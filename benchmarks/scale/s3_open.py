@@ -8,9 +8,10 @@ Each ``--data LABEL=PATH`` (a local dataset made by `benchmarks.scale.datasets`,
 ``LABEL``: ``after`` is this checkout, any other label's tree comes first on ``PYTHONPATH`` as
 ``--source LABEL=TREE`` says) is uploaded to SeaweedFS (32 uploads side by side), then
 `storage.open_dataset` runs in a fresh process of that tree (`benchmarks/scale/probe.py`), which
-counts every request s3fs sends; datasets of at most ``--with-shards`` tasks are uploaded whole and
-one sample is read too, larger ones without their shard files (what opening reads: ``dataset.json``,
-the records' listing and the index), which a 100,000-task upload would spend most of its time on.
+counts every request s3fs sends, and so do ``shards ls`` and ``shards stats`` (run in the probe's
+process); datasets of at most ``--with-shards`` tasks are uploaded whole and one sample is read too,
+larger ones without their shard files (what opening, ``ls`` and ``stats`` read: ``dataset.json``, the
+records and the index), which a 100,000-task upload would spend most of its time on.
 """
 
 from __future__ import annotations
@@ -72,7 +73,7 @@ def main() -> None:
             files = upload(server, root, prefix, whole)
             env = {**source_env(trees[label], os.environ), **server.env()}
             url = f"s3://datasets/{prefix}"
-            for operation in ("open", "sample") if whole else ("open",):
+            for operation in ("open", "sample", "ls", "stats") if whole else ("open", "ls", "stats"):
                 report = args.work / "report.json"
                 found = run_measured(
                     [sys.executable, str(PROBE), operation, url, str(report)],

@@ -41,8 +41,12 @@ def test_replicas_are_a_valid_dataset_of_distinct_tasks(replicated: Path) -> Non
 def test_the_probe_reports_its_own_seconds(replicated: Path, tmp_path: Path) -> None:
     report = tmp_path / "report.json"
     probe = Path(datasets.__file__).with_name("probe.py")
-    for operation in ("open", "sample"):
+    for operation in ("open", "sample", "ls", "stats"):
         assert operation in PROBES
-        subprocess.run([sys.executable, str(probe), operation, str(replicated), str(report)], check=True)
+        done = subprocess.run(
+            [sys.executable, str(probe), operation, str(replicated), str(report)], check=True, capture_output=True
+        )
         found = json.loads(report.read_text())
         assert found["seconds"] > 0 and found["requests"] == 0
+        if operation == "ls":  # the command ran in the probe's process: its table is the output
+            assert b"committed" in done.stdout
