@@ -13,7 +13,6 @@ from typing import Annotated
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
-from rich.table import Table
 from rich.text import Text
 
 from datagen.cli.common import Cell, console, error_console, print_rows, say, user_errors
@@ -183,7 +182,7 @@ def status(
         jobs = api.status(job_id, settings)
         ledger = api.ledger_for(settings)
         try:
-            table = Table("job", "state", "tasks", "done", "failed", "running", "dataset")
+            job_rows: list[list[Cell]] = []
             hints = []
             lost_jobs = set()
             for job in jobs:
@@ -198,16 +197,19 @@ def status(
                         f"job {job.job_id}: {who}, last heard from {_ago(lost.since)} ago; "
                         f"run `datagen resume {job.job_id}` to finish it"
                     )
-                table.add_row(
-                    job.job_id,
-                    state,
-                    str(sum(counts.values())),
-                    str(counts.get("done", 0)),
-                    str(counts.get("failed", 0)),
-                    str(counts.get("running", 0)),
-                    job.out,
+                job_rows.append(
+                    [
+                        job.job_id,
+                        state,
+                        str(sum(counts.values())),
+                        str(counts.get("done", 0)),
+                        str(counts.get("failed", 0)),
+                        str(counts.get("running", 0)),
+                        job.out,
+                    ]
                 )
-            console.print(table)
+            # Whole lines off a terminal: the id that `resume` and `cancel` take is copied from a pipe.
+            print_rows(["job", "state", "tasks", "done", "failed", "running", "dataset"], job_rows)
             for hint in hints:
                 say(hint)
             if job_id:

@@ -170,7 +170,7 @@ def test_status_shows_a_job_whose_driver_died_as_lost(
     ledger.start_job(job_id, "doomed-driver", lease=3600, process=process_identity(doomed.pid))
     ledger.claim(job_id, "doomed-driver", 3600)
     alive = status_output(home, monkeypatch=monkeypatch)
-    assert "driver lost" not in alive and " running " in alive
+    assert "driver lost" not in alive and "\trunning\t" in alive
     kill(doomed)
     for output in (status_output(home, monkeypatch=monkeypatch), status_output(home, job_id, monkeypatch=monkeypatch)):
         assert "running (driver lost 0 s ago)" in output, output

@@ -151,10 +151,12 @@ def test_status_lists_every_task_and_the_counts(inputs: Path, tmp_path: Path, mo
     result = CliRunner().invoke(app, ["status", job_id, "--home", str(home)])
     assert result.exit_code == 0, result.output
     lines = result.stdout.splitlines()
-    rows = [line.split("\t") for line in lines if "\t" in line]
+    # Off a terminal both tables are whole tab-separated lines: the job's, then its tasks'.
+    assert lines[0].split("\t") == ["job", "state", "tasks", "done", "failed", "running", "dataset"]
+    assert lines[1].split("\t")[:6] == [job_id, PENDING, str(TASKS), "0", "0", "0"]
+    rows = [line.split("\t") for line in lines[2:] if "\t" in line]
     assert rows[0] == ["task", "state", "attempts", "samples", "placement", "error"]
     assert [row[0] for row in rows[1:]] == [t.task_id for t in job_tasks(home, job_id)]
     assert {row[1] for row in rows[1:]} == {PENDING}
-    (job_row,) = [line for line in lines if job_id in line and "│" in line]
-    cells = [cell.strip() for cell in job_row.split("│") if cell.strip()]
-    assert cells[:6] == [job_id, PENDING, str(TASKS), "0", "0", "0"]
+    listing = CliRunner().invoke(app, ["status", "--home", str(home)])  # every job: the id whole in a pipe
+    assert listing.exit_code == 0 and [job_id, PENDING] == listing.stdout.splitlines()[1].split("\t")[:2]
