@@ -56,8 +56,8 @@ class AirLayout(Layout):
     )
 
     def skipped(self, dataset: Dataset) -> list[str]:
-        labels = dataset.index.column("label").to_numpy()
-        points = dataset.index.column("num_points").to_numpy()
+        labels = dataset.values("label", keep=False)
+        points = dataset.values("num_points", keep=False)
         pairs = zip(labels, points, strict=True)
         return [EMPTY_LABEL if not label else NO_POINTS if not count else "" for label, count in pairs]
 

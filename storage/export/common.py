@@ -19,6 +19,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 import numpy.typing as npt
+import pyarrow as pa
 
 from storage.location import StorageError
 from storage.reader import Dataset
@@ -269,8 +270,14 @@ def object_folders(dataset: Dataset, word: str | None, reserved: tuple[str, ...]
     """One folder name per object id: its name, or name plus id prefix when two objects share a name,
     or a name is one the export writes at its root. A name holding ``word`` is refused (their loader
     replaces it anywhere in the path)."""
-    ids = dataset.index.column("object_id").to_pylist()
-    names = dataset.index.column("object_name").to_pylist()
+    pairs = pa.table(
+        {
+            "id": dataset.samples.column("object_id", keep=False),
+            "name": dataset.samples.column("object_name", keep=False),
+        }
+    )
+    objects = pairs.group_by(["id", "name"], use_threads=False).aggregate([])  # one row per object, not sample
+    ids, names = objects.column("id").to_pylist(), objects.column("name").to_pylist()
     by_id = {object_id: name.replace("/", "_").replace("\\", "_") for object_id, name in zip(ids, names, strict=True)}
     counts: dict[str, int] = {}
     for name in by_id.values():
@@ -290,7 +297,7 @@ def object_folders(dataset: Dataset, word: str | None, reserved: tuple[str, ...]
 def rotation_folders(dataset: Dataset, rotation_names: str) -> dict[int, str]:
     """Rotation r (a yaw of r x 360/R degrees) -> its folder name."""
     total = dataset.info.config.rotations
-    present = sorted({int(r) for r in dataset.index.column("rotation").to_pylist()})
+    present = sorted(int(r) for r in dataset.counts("rotation"))
     folders = {}
     for r in present:
         if rotation_names == "yaw":
@@ -417,9 +424,8 @@ def bits32(mask: int) -> npt.NDArray[np.float32]:
 def dataset_facts(dataset: Dataset) -> tuple[str, dict[str, Any]]:
     """The provenance's dataset line (without a layout's note) and its data."""
     config = dataset.info.config
-    index = dataset.index
-    refiners = sorted(set(index.column("refiner").to_pylist()))
-    weights = sorted(set(index.column("weights_id").to_pylist()) - {""})
+    refiners = sorted(dataset.counts("refiner"))
+    weights = sorted(set(dataset.counts("weights_id")) - {""})
     weights_text = f", weights {', '.join(w[:16] for w in weights)}" if weights else ""
     line = (
         f"dataset: {dataset.url} (config hash {dataset.info.config_hash}, alpha {config.alpha}, "

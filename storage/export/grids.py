@@ -30,11 +30,10 @@ class Grids:
 
     def __init__(self, dataset: Dataset) -> None:
         self.dataset = dataset
-        self.shards = dataset.index.column("shard").to_pylist()
 
     def of(self, i: int, case: int) -> npt.NDArray[np.float64]:
         """(GRID_CELLS,) probabilities of sample i, whose view state is ``case``, x-major."""
-        shard = self.dataset.shard(self.shards[i])
+        shard = self.dataset.shard(self.dataset.samples.shard(i))
         return case_probabilities(shard.array(GRID_HITS), shard.array(GRID_MISSES), case)
 
 

@@ -65,7 +65,7 @@ class MascvpLayout(Layout):
     )
 
     def skipped(self, dataset: Dataset) -> list[str]:
-        return [EMPTY_LABEL if not label else "" for label in dataset.index.column("label").to_numpy()]
+        return [EMPTY_LABEL if not label else "" for label in dataset.values("label", keep=False)]
 
     def start(self, run: Run) -> Writer:
         return _MascvpWriter(run)

@@ -58,7 +58,7 @@ class NbvnetLayout(Layout):
     )
 
     def skipped(self, dataset: Dataset) -> list[str]:
-        return [NO_NEXT_VIEW if best < 0 else "" for best in dataset.index.column("best_view").to_numpy()]
+        return [NO_NEXT_VIEW if best < 0 else "" for best in dataset.values("best_view", keep=False)]
 
     def start(self, run: Run) -> Writer:
         return _NbvnetWriter(run)
@@ -76,7 +76,7 @@ class _NbvnetWriter(Writer):
         self.grids = Grids(run.dataset)
         self.arrays = SplitArrays(run, ARRAYS)
         self.ties = 0
-        ties = run.dataset.index.column("best_view_ties").to_numpy()
+        ties = run.dataset.values("best_view_ties", keep=False)
         self._tied = ties > 1
 
     def write(self, place: Place) -> None:

@@ -73,7 +73,7 @@ class PcnbvLayout(Layout):
     )
 
     def skipped(self, dataset: Dataset) -> list[str]:
-        return [NO_POINTS if not count else "" for count in dataset.index.column("num_observed").to_numpy()]
+        return [NO_POINTS if not count else "" for count in dataset.values("num_observed", keep=False)]
 
     def start(self, run: Run) -> Writer:
         return _PcnbvWriter(run)
@@ -93,8 +93,8 @@ class _PcnbvWriter(Writer):
         self.arrays = SplitArrays(run, _arrays(self.points, self.gt_points))
         self.resampled = 0
         self.gt_resampled: set[str] = set()
-        self.tasks = run.dataset.index.column("task_id").to_pylist()
-        self.shards = run.dataset.index.column("shard").to_pylist()
+        self.tasks = run.dataset.column("task_id").to_pylist()
+        self.shards = run.dataset.column("shard").to_pylist()
         self._gt: tuple[str, npt.NDArray[np.float32]] | None = None
 
     def write(self, place: Place) -> None:

@@ -130,8 +130,8 @@ class _Plan:
 
     @classmethod
     def of(cls, dataset: Dataset, reasons: list[str], options: Options, folders: dict[str, str]) -> _Plan:
-        sample_ids = dataset.index.column("sample_id").to_pylist()
-        objects = dataset.index.column("object_id").to_pylist()
+        sample_ids = dataset.column("sample_id").to_pylist()
+        objects = dataset.column("object_id").to_pylist()
         kept = [i for i, reason in enumerate(reasons) if not reason]
         skipped = dict(sorted((sample_ids[i], reason) for i, reason in enumerate(reasons) if reason))
         train_at, test_at = split_by_object([objects[i] for i in kept], options.val_fraction, options.seed)
@@ -156,11 +156,10 @@ def _write_samples(
 ) -> None:
     """Every sample in shard order (shards sorted by path, rows in index order): the written ones get
     their place, every one counts for the progress."""
-    index = dataset.index
-    sample_ids = index.column("sample_id").to_pylist()
-    objects = index.column("object_id").to_pylist()
-    rotation_of = index.column("rotation").to_pylist()
-    rows = index.column("row").to_pylist()
+    sample_ids = dataset.column("sample_id").to_pylist()  # one column at a time, never the whole index
+    objects = dataset.column("object_id").to_pylist()
+    rotation_of = dataset.values("rotation")
+    rows = dataset.values("row")
     positions = dict.fromkeys(SPLITS, 0)
     made: set[Path] = set()
     order = np.concatenate(dataset.shard_blocks()).tolist()
