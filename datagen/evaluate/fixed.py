@@ -34,7 +34,16 @@ from datagen.pipeline.setcover import mask_to_views
 from schemas.shard import keys_array, offsets_array
 
 SCALE = 1 << 40
-"""Integer weight of one whole case (a case's keys weigh 1/|R_t| each, times this)."""
+"""Integer weight of one whole case (a case's keys weigh 1/|R_t| each, times this), up to 4,096 tasks;
+past that `case_scale` makes it smaller so that the search's sums stay in int64."""
+SEARCH_HEADROOM = 1 << 57
+"""Largest total weight of every case: the search adds up to 32 views' gains to a value (2^62)."""
+
+
+def case_scale(tasks: int, num_views: int) -> int:
+    """`SCALE`, or less where ``tasks`` of ``num_views`` single-view cases would pass `SEARCH_HEADROOM`
+    (datasets of up to 4,096 tasks of 32 views keep it, and their plans)."""
+    return max(1, min(SCALE, SEARCH_HEADROOM // max(1, tasks * num_views)))
 NODE_BUDGET = 400_000
 """Nodes the exact search may spend on one size before the greedy set stands in."""
 FIXED_OPTION = "--fixed-from"
@@ -115,6 +124,8 @@ class CaseWeights:
     tasks: int
     cases: int
     num_views: int
+    scale: int = SCALE
+    """Weight of one whole case (`case_scale`)."""
 
 
 READ_THREADS = 8
@@ -135,6 +146,7 @@ def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> Cas
         singles[dataset.samples.shards[code]].append(int(state).bit_length() - 1)
     weights: dict[int, int] = defaultdict(int)
     initial = cases = 0
+    scale = case_scale(len(singles), num_views)
 
     def visibility(shard: str) -> tuple[str, npt.NDArray[np.uint64], npt.NDArray[np.int64]]:
         reader = ShardReader(dataset.location, shard, span=dataset.samples.span(shard))
@@ -145,7 +157,7 @@ def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> Cas
     with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:  # reads overlap; sums do not depend on order
         visible = pool.map(visibility, sorted(singles))
         for shard, masks, counts in visible:
-            initial, cases = _add_task(weights, masks, counts, singles[shard], initial, cases)
+            initial, cases = _add_task(weights, masks, counts, singles[shard], initial, cases, scale)
     if not cases:
         raise PlannerError(f"{url}: holds no single-view cases to choose fixed plans from")
     ordered = sorted(weights)
@@ -156,6 +168,7 @@ def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> Cas
         tasks=len(singles),
         cases=cases,
         num_views=num_views,
+        scale=scale,
     )
 
 
@@ -166,19 +179,21 @@ def _add_task(
     singles: list[int],
     initial: int,
     cases: int,
+    scale: int = SCALE,
 ) -> tuple[int, int]:
-    """Add one task's visibility masks and single-view cases to ``weights``; (initial, cases) after it."""
+    """Add one task's visibility masks and single-view cases to ``weights`` (a whole case weighing
+    ``scale``); (initial, cases) after it."""
     reference = int(counts.sum())
     if not reference:
         return initial, cases
     views = np.array(singles, dtype=np.uint64)
     held = ((masks[:, None] >> views[None, :]) & np.uint64(1)).sum(axis=1).astype(np.int64)
     cases += views.size
-    initial += sum(int(c) * int(h) * SCALE // reference for c, h in zip(counts.tolist(), held.tolist(), strict=True))
+    initial += sum(int(c) * int(h) * scale // reference for c, h in zip(counts.tolist(), held.tolist(), strict=True))
     for mask, count, inside in zip(masks.tolist(), counts.tolist(), held.tolist(), strict=True):
         missing = views.size - inside  # single-view cases of this task that do not see these keys
         if missing:
-            weights[mask] += count * missing * SCALE // reference
+            weights[mask] += count * missing * scale // reference
     return initial, cases
 
 
@@ -201,7 +216,7 @@ def choose_fixed_plans(
             answer, exact = search.best(size)[0], True
         except SearchBudgetExceeded:
             answer, exact = _greedy(search, size), False
-        mean = (weights.initial_weight + answer.value) / (SCALE * weights.cases)
+        mean = (weights.initial_weight + answer.value) / (weights.scale * weights.cases)
         return FixedPlan(mask_to_views(answer.views), mean, exact)
 
     by_size = {size: best(size, every) for size in sizes}

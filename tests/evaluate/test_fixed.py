@@ -151,3 +151,22 @@ def test_a_bad_oracle_setting_is_one_planner_error(spec: str, message: str) -> N
     with pytest.raises(PlannerError) as info:
         make_planner(spec, PlannerContext())
     assert message in str(info.value) and "\n" not in str(info.value)
+
+
+def test_a_hundred_thousand_tasks_keep_the_search_within_int64() -> None:
+    """A whole case weighs `SCALE` up to 4,096 tasks of 32 views (their plans unchanged) and less past
+    that, so that every case's weight, and the search's sums of gains on top, fit in int64: weights made
+    as 100,000 tasks' would give (their total at the headroom) choose a plan of every size."""
+    from datagen.evaluate.fixed import SCALE, SEARCH_HEADROOM, CaseWeights, case_scale
+
+    assert case_scale(4096, 32) == SCALE and case_scale(1, 32) == SCALE
+    scale = case_scale(100_000, 32)
+    assert scale < SCALE and 100_000 * 32 * scale <= SEARCH_HEADROOM
+    rng = np.random.default_rng(3)
+    masks = np.unique(rng.integers(1, 1 << 32, size=400, dtype=np.uint64))
+    shares = rng.random(masks.size)
+    weights = (shares / shares.sum() * (SEARCH_HEADROOM - 1)).astype(np.int64)
+    found = CaseWeights(masks, weights, 0, tasks=100_000, cases=100_000 * 32, num_views=32, scale=scale)
+    plans = choose_fixed_plans(found, "made up", sizes=range(1, 6), node_budget=20_000)
+    assert sorted(plans.by_size) == [1, 2, 3, 4, 5]
+    assert all(len(plan.views) == size and plan.mean_coverage > 0 for size, plan in plans.by_size.items())
