@@ -7,6 +7,7 @@ from pydantic import ValidationError
 from schemas.dataset import DATASET_FILE, DatasetInfo
 from schemas.version import unreadable_version
 from storage.location import Location, StorageError, damaged, first_validation_error
+from storage.manifest import mark_adding
 from storage.writer import COMMITS, FAILURES
 
 
@@ -33,7 +34,8 @@ def holds_records(location: Location) -> bool:
 
 
 def init_dataset(location: Location, info: DatasetInfo) -> DatasetInfo:
-    """Write ``dataset.json`` for a new dataset, or check that an existing one has the same config."""
+    """Write ``dataset.json`` for a new dataset, or check that an existing one has the same config; a
+    job adds to it next, so readers are told to look past its manifest (`manifest.mark_adding`)."""
     if location.exists(DATASET_FILE):
         existing = read_info(location)
         if existing.config_hash != info.config_hash:
@@ -43,6 +45,8 @@ def init_dataset(location: Location, info: DatasetInfo) -> DatasetInfo:
                 f"{location.url}: holds a dataset of another config (hash {existing.config_hash[:12]}, "
                 f"this job {info.config_hash[:12]}){hint if theirs != ours else ''}; write to a new --out"
             )
+        mark_adding(location)
         return existing
     location.write_atomic(DATASET_FILE, info.model_dump_json(indent=1).encode())
+    mark_adding(location)
     return info

@@ -28,6 +28,7 @@ from storage.manifest import (
     MANIFEST_FILE,
     TASKS_SCHEMA,
     Finalised,
+    being_added_to,
     check_samples_tables,
     listed_commits,
     object_of,
@@ -64,9 +65,10 @@ def read_schema_version(location: Location) -> int:
 
 def open_index(location: Location) -> SampleIndex:
     """Where each committed sample lives, with its index columns read on demand: from the manifest
-    (plus the tasks committed since it was written) when there is one, else from the legacy merged
-    index or the fragments (`load_index`). `DamagedFile` for a manifest naming a task without a commit
-    record, or a damaged file it needs."""
+    when there is one (and, while a job adds to the dataset, `manifest.ADDING_FILE`, the tasks
+    committed since it was written), else from the legacy merged index or the fragments
+    (`load_index`). `DamagedFile` for a damaged file it needs, or, while a job adds, a manifest naming
+    a task without a commit record (`shards validate` names that at any time)."""
     manifest = read_manifest(location)
     if manifest is None:
         return from_table(load_index(location))
@@ -74,7 +76,7 @@ def open_index(location: Location) -> SampleIndex:
     check_samples_tables(location, manifest)
     schema = INDEX_SCHEMAS[manifest.schema_version]
     tail = None
-    if not manifest.packed:
+    if not manifest.packed and being_added_to(location):  # a job adds tasks: they are read as they commit
         listed = listed_commits(location)
         named = tasks.column("task_id").to_pylist()
         lost = sorted(set(named) - set(listed))

@@ -85,7 +85,9 @@ def run_job(label: str, command: list[str], work: Path, budget: float | None) ->
     env.pop("RAY_ADDRESS", None)
     started = time.perf_counter()
     with (work / f"{label}.log").open("wb") as log:
-        process = subprocess.Popen(command, cwd=REPO_ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
+        process = subprocess.Popen(
+            command, cwd=REPO_ROOT, env=env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=_interruptible
+        )
         try:
             process.wait(timeout=budget)
             return time.perf_counter() - started, False
@@ -97,6 +99,12 @@ def run_job(label: str, command: list[str], work: Path, budget: float | None) ->
                 process.kill()
                 process.wait()
             return time.perf_counter() - started, True
+
+
+def _interruptible() -> None:
+    """In the child: SIGINT back to its default (a harness started in the background passes it on ignored,
+    and the budget's SIGINT would then wait for the kill)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def dataset_job(label: str, url: Path, wall: float, stopped: bool) -> Job:

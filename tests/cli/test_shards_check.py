@@ -45,6 +45,7 @@ from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
 from schemas.version import SCHEMA_VERSION
 from storage import StorageError, committed_tasks, open_dataset, open_location, read_failures
 from storage.covers import mask_views
+from storage.manifest import mark_adding
 from storage.shards import KEY_CHUNK_ROWS, ShardReader
 from storage.validate import SAMPLED_ROWS_PER_SHARD
 from storage.visibility import VisibilityJudge
@@ -358,6 +359,8 @@ def test_deleted_commit_record_of_a_finalised_dataset(ds: Path) -> None:
     os.remove(ds / commit_path(record.task_id))
     result = validate_all(ds)
     assert lines_with(result, "index/manifest.json", record.task_id, "no commit record")
+    assert len(open_dataset(str(ds))) > 0  # a finished dataset is its manifest; its samples are intact
+    mark_adding(open_location(str(ds)))  # a job adding to it: opening lists the records and refuses
     with pytest.raises(StorageError, match=record.task_id):
         open_dataset(str(ds))
 

@@ -30,6 +30,7 @@ from schemas.index import FailureRecord
 from schemas.version import SCHEMA_VERSION
 from storage import StorageError
 from storage.location import open_location
+from storage.manifest import ADDING_FILE, mark_adding
 from storage.reader import Dataset, finalise, open_dataset
 from storage.validate import validate
 from storage.writer import commit_path, failure_path, fragment_path, read_failures, shard_path, write_failure
@@ -275,14 +276,18 @@ def segment(root: Path) -> tuple[Path, Path]:
     return root / only["tasks"], root / only["samples"]
 
 
-@pytest.mark.parametrize("index", ["manifest", "before the manifest"])
+@pytest.mark.parametrize("index", ["manifest while a job adds", "before the manifest"])
 def test_deleted_commit_record_refuses_the_finalised_index(ds: Path, index: str) -> None:
+    """Where readers list the commit records (a job adds to the dataset, or an earlier datagen's index),
+    a finalised task without one is refused; validate names it."""
     from storage.torch import OSVPDataset
 
     named = MANIFEST
-    if index != "manifest":
+    if index != "manifest while a job adds":
         fx.finalise_as_before(open_location(str(ds)))
         named = "index.json"
+    else:
+        mark_adding(open_location(str(ds)))
     os.remove(ds / commit_path(FIRST))
     for open_it in (open_dataset, OSVPDataset):
         with pytest.raises(StorageError) as caught:
@@ -290,6 +295,34 @@ def test_deleted_commit_record_refuses_the_finalised_index(ds: Path, index: str)
         assert_one_line(caught.value, ds, named, FIRST, commit_path(FIRST))
     found = validate(str(ds), full=True)
     assert [line for line in found if FIRST in line and named in line and "no commit record" in line]
+
+
+def test_a_finished_manifest_is_the_dataset_read_without_listing_the_commit_records(
+    ds: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """No job adds to it (a finished job's finalise took its marker away): opening reads the manifest and
+    never lists ``commits/`` (100 requests at 100,000 tasks on S3). A commit record lost since then does
+    not stop reading the samples, which are intact; validate names it and repair's fix stands."""
+    from storage.location import Location
+
+    assert not (ds / ADDING_FILE).exists()
+    listed: list[str] = []
+    listdir = Location.listdir
+
+    def spy(self: Location, relative: str) -> list[str]:
+        listed.append(relative)
+        return listdir(self, relative)
+
+    monkeypatch.setattr(Location, "listdir", spy)
+    assert len(open_dataset(str(ds))) == fx.total_samples() and "commits" not in listed
+    os.remove(ds / commit_path(FIRST))
+    dataset = open_dataset(str(ds))
+    assert len(dataset) == fx.total_samples() and dataset[0]["points"].size
+    found = validate(str(ds), full=True)
+    assert [line for line in found if FIRST in line and MANIFEST in line and "no commit record" in line]
+    mark_adding(open_location(str(ds)))  # a job starts adding: now the lost record is seen on opening
+    with pytest.raises(StorageError):
+        open_dataset(str(ds))
 
 
 def test_deleted_commit_record_of_a_dataset_never_finalised_still_reads(ds: Path) -> None:

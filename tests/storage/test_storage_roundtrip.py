@@ -21,7 +21,7 @@ from schemas.version import SCHEMA_VERSION
 from storage.dataset_info import init_dataset, read_info
 from storage.index import load_index
 from storage.location import StorageError, open_location
-from storage.manifest import MANIFEST_FILE, read_manifest
+from storage.manifest import ADDING_FILE, MANIFEST_FILE, mark_adding, read_manifest
 from storage.reader import Dataset, finalise, open_dataset
 from storage.shards import ShardReader
 from storage.writer import (
@@ -235,7 +235,8 @@ def test_finalise_then_reopen_gives_the_same_index(backend: str, tmp_path: Path)
         assert reopened.index.equals(before)
         assert reopened.index.schema.remove_metadata() == INDEX_SCHEMA
         np.testing.assert_array_equal(reopened[3]["points"], open_dataset(url)[3]["points"])
-        # A task committed after finalise shows up although index.parquet is now stale.
+        # A task committed after finalise (a job adding: it says so first) shows up before the next one.
+        mark_adding(location)
         write_task(location, second, "late")
         grown = open_dataset(url)
         assert len(grown) == fx.total_samples()
@@ -243,6 +244,7 @@ def test_finalise_then_reopen_gives_the_same_index(backend: str, tmp_path: Path)
         assert grown.index.slice(0, len(before)).equals(before)
         appended = finalise(location)  # a second segment: the task committed since
         assert (appended.added_tasks, len(appended.manifest.segments)) == (1, 2)
+        assert not location.exists(ADDING_FILE)  # every task is named again
         assert open_dataset(url).index.equals(grown.index)
         assert load_index(location).equals(grown.index)
     finally:
