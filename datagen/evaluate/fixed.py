@@ -44,6 +44,8 @@ def case_scale(tasks: int, num_views: int) -> int:
     """`SCALE`, or less where ``tasks`` of ``num_views`` single-view cases would pass `SEARCH_HEADROOM`
     (datasets of up to 4,096 tasks of 32 views keep it, and their plans)."""
     return max(1, min(SCALE, SEARCH_HEADROOM // max(1, tasks * num_views)))
+
+
 NODE_BUDGET = 400_000
 """Nodes the exact search may spend on one size before the greedy set stands in."""
 FIXED_OPTION = "--fixed-from"
