@@ -15,6 +15,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
+import pyarrow as pa
+import pyarrow.compute as pc
 
 from storage.export.common import (
     PHRASES,
@@ -48,7 +51,7 @@ from storage.export.common import (
 from storage.export.registry import layout_named
 from storage.location import StorageError
 from storage.reader import Dataset, open_dataset
-from storage.samples import split_by_object
+from storage.samples import held_out_objects
 
 
 def export(
@@ -83,7 +86,7 @@ def export(
     rotations = rotation_folders(dataset, options.rotation_names)
     reasons = chosen.skipped(dataset)
     plan = _Plan.of(dataset, reasons, options, folders)
-    if not plan.kept:
+    if not plan.kept.size:
         why = " or ".join(PHRASES[reason] for reason in chosen.skip_reasons)
         raise StorageError(f"{url}: every sample has {why}; there is nothing the authors' trainer can read")
     if not plan.train_names:
@@ -119,10 +122,16 @@ def export(
 
 @dataclass(frozen=True)
 class _Plan:
-    """Which rows are written, each one's split, and the object folders on each side."""
+    """Which rows are written, each one's split, and the object folders on each side: arrays over the
+    rows (a dataset of millions of samples holds no Python object per sample)."""
 
-    kept: list[int]
-    split_of: dict[int, str]
+    kept: npt.NDArray[np.int64]
+    """Rows written, ascending."""
+    side_of: npt.NDArray[np.int8]
+    """Per row: its split's place in `SPLITS`, or -1 where it is skipped."""
+    object_codes: npt.NDArray[np.int64]
+    """Per row: its object's place in ``object_ids``."""
+    object_ids: list[str]
     skipped: dict[str, str]
     """Sample id -> why it is not written."""
     train_names: list[str]
@@ -130,18 +139,29 @@ class _Plan:
 
     @classmethod
     def of(cls, dataset: Dataset, reasons: list[str], options: Options, folders: dict[str, str]) -> _Plan:
-        sample_ids = dataset.column("sample_id").to_pylist()
-        objects = dataset.column("object_id").to_pylist()
-        kept = [i for i, reason in enumerate(reasons) if not reason]
-        skipped = dict(sorted((sample_ids[i], reason) for i, reason in enumerate(reasons) if reason))
-        train_at, test_at = split_by_object([objects[i] for i in kept], options.val_fraction, options.seed)
-        split_of = {kept[p]: TRAIN for p in train_at.tolist()} | {kept[p]: TEST for p in test_at.tolist()}
-        names = {side: sorted({folders[objects[i]] for i, s in split_of.items() if s == side}) for side in SPLITS}
-        return cls(kept, split_of, skipped, names[TRAIN], names[TEST])
+        encoded = pc.dictionary_encode(dataset.samples.column("object_id", keep=False)).combine_chunks()
+        object_ids = encoded.dictionary.to_pylist()
+        codes = encoded.indices.to_numpy(zero_copy_only=False).astype(np.int64)
+        written = np.fromiter((not reason for reason in reasons), dtype=bool, count=len(reasons))
+        kept = np.flatnonzero(written)
+        dropped = np.flatnonzero(~written)
+        ids = dataset.samples.column("sample_id", keep=False).take(pa.array(dropped)).to_pylist()
+        skipped = dict(sorted(zip(ids, (reasons[i] for i in dropped.tolist()), strict=True)))
+        # `split_by_object` over the kept rows' objects, decided once per object instead of per row.
+        present = sorted({object_ids[c] for c in np.unique(codes[kept]).tolist()})
+        held = held_out_objects(present, options.val_fraction, options.seed)
+        in_test = np.fromiter((o in held for o in object_ids), dtype=bool, count=len(object_ids))
+        side_of = np.full(len(reasons), -1, dtype=np.int8)
+        side_of[kept] = np.where(in_test[codes[kept]], SPLITS.index(TEST), SPLITS.index(TRAIN))
+        names = {}
+        for side in SPLITS:
+            on_side = np.unique(codes[side_of == SPLITS.index(side)]).tolist()
+            names[side] = sorted({folders[object_ids[c]] for c in on_side})
+        return cls(kept, side_of, codes, object_ids, skipped, names[TRAIN], names[TEST])
 
     def sizes(self) -> dict[str, int]:
-        counts = Counter(self.split_of.values())
-        return {side: counts.get(side, 0) for side in SPLITS}
+        counts = np.bincount(self.side_of[self.side_of >= 0], minlength=len(SPLITS))
+        return {side: int(counts[k]) for k, side in enumerate(SPLITS)}
 
 
 def _write_samples(
@@ -155,25 +175,29 @@ def _write_samples(
     progress: Progress | None,
 ) -> None:
     """Every sample in shard order (shards sorted by path, rows in index order): the written ones get
-    their place, every one counts for the progress."""
-    sample_ids = dataset.column("sample_id").to_pylist()  # one column at a time, never the whole index
-    objects = dataset.column("object_id").to_pylist()
-    rotation_of = dataset.values("rotation")
-    rows = dataset.values("row")
+    their place, every one counts for the progress. Sample ids are read a shard's rows at a time."""
+    sample_id_column = dataset.samples.column("sample_id", keep=False)
+    rotation_of = dataset.values("rotation", keep=False)
+    rows = dataset.values("row", keep=False)
     positions = dict.fromkeys(SPLITS, 0)
     made: set[Path] = set()
-    order = np.concatenate(dataset.shard_blocks()).tolist()
-    for done, i in enumerate(order, 1):
-        side = plan.split_of.get(i)
-        if side is not None:
-            folder = staging / folders[objects[i]] / rotations[int(rotation_of[i])]
-            if folder not in made:
-                make_folder(folder, target)
-                made.add(folder)
-            writer.write(Place(i, sample_ids[i], folder, int(rows[i]), side, positions[side]))
-            positions[side] += 1
-        if progress is not None:
-            progress(done, len(dataset))
+    done = 0
+    for block in dataset.shard_blocks():
+        sides = plan.side_of[block]
+        chosen = block[sides >= 0]
+        sample_ids = dict(zip(chosen.tolist(), sample_id_column.take(pa.array(chosen)).to_pylist(), strict=True))
+        for i, code in zip(block.tolist(), sides.tolist(), strict=True):
+            done += 1
+            if code >= 0:
+                side = SPLITS[code]
+                folder = staging / folders[plan.object_ids[plan.object_codes[i]]] / rotations[int(rotation_of[i])]
+                if folder not in made:
+                    make_folder(folder, target)
+                    made.add(folder)
+                writer.write(Place(i, sample_ids[i], folder, int(rows[i]), side, positions[side]))
+                positions[side] += 1
+            if progress is not None:
+                progress(done, len(dataset))
 
 
 def _provenance(
