@@ -5,11 +5,13 @@ Plain functions over `datagen.api` and `datagen.engine.serve`; `datagen.cli.main
 
 from __future__ import annotations
 
+import json
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -173,6 +175,9 @@ def resume(
 def status(
     job_id: Annotated[str | None, typer.Argument(help="Job id; all jobs when omitted.")] = None,
     home: HomeOption = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="One JSON object (jobs; with JOB, its tasks too) instead of tables.")
+    ] = False,
 ) -> None:
     """Jobs and their task counts (one job: every task, one line each outside a terminal)."""
     from datagen import api
@@ -181,6 +186,12 @@ def status(
         settings = _settings(home)
         jobs = api.status(job_id, settings)
         ledger = api.ledger_for(settings)
+        if as_json:
+            try:
+                _print_status_json(ledger, jobs, job_id)
+            finally:
+                ledger.close()
+            return
         try:
             job_rows: list[list[Cell]] = []
             hints = []
@@ -228,6 +239,42 @@ def status(
                 print_rows(["task", "state", "attempts", "samples", "placement", "error"], rows)
         finally:
             ledger.close()
+
+
+def _print_status_json(ledger: Any, jobs: list[Any], job_id: str | None) -> None:
+    """`status --json`: ``{"jobs": [...]}`` and, for one job, ``"tasks"``, written a task at a time (a job
+    of 100,000 tasks is never held as one document)."""
+    rows = []
+    for job in jobs:
+        counts = ledger.task_counts(job.job_id)
+        lost = ledger.lost_driver(job.job_id)
+        rows.append(
+            {
+                "job_id": job.job_id,
+                "state": job.state,
+                "driver_lost": lost is not None,
+                "tasks": sum(counts.values()),
+                "counts": dict(sorted(counts.items())),
+                "dataset": job.out,
+            }
+        )
+    out = sys.stdout
+    out.write('{"jobs": ' + json.dumps(rows))
+    if job_id:
+        out.write(', "tasks": [')
+        for number, task in enumerate(ledger.each_task(job_id)):
+            entry = {
+                "task_id": task.task_id,
+                "state": task.state,
+                "attempts": task.attempts,
+                "samples": task.samples,
+                "placement": task.placement,
+                "error": task.error,
+            }
+            out.write(("," if number else "") + "\n" + json.dumps(entry))
+        out.write("\n]")
+    out.write("}\n")
+    out.flush()
 
 
 def _ago(moment: float) -> str:

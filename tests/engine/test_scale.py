@@ -10,6 +10,7 @@ One private Ray (2 CPUs) serves the module, as in test_engine.py.
 
 from __future__ import annotations
 
+import json
 import sys
 import threading
 from collections import Counter
@@ -160,3 +161,13 @@ def test_status_lists_every_task_and_the_counts(inputs: Path, tmp_path: Path, mo
     assert {row[1] for row in rows[1:]} == {PENDING}
     listing = CliRunner().invoke(app, ["status", "--home", str(home)])  # every job: the id whole in a pipe
     assert listing.exit_code == 0 and [job_id, PENDING] == listing.stdout.splitlines()[1].split("\t")[:2]
+    as_json = CliRunner().invoke(app, ["status", job_id, "--home", str(home), "--json"])  # what a script reads
+    assert as_json.exit_code == 0, as_json.output
+    found = json.loads(as_json.stdout)
+    assert [(j["job_id"], j["state"], j["tasks"], j["counts"]) for j in found["jobs"]] == [
+        (job_id, PENDING, TASKS, {PENDING: TASKS})
+    ]
+    assert [t["task_id"] for t in found["tasks"]] == [t.task_id for t in job_tasks(home, job_id)]
+    assert all(t["state"] == PENDING and t["attempts"] == 0 for t in found["tasks"])
+    every = json.loads(CliRunner().invoke(app, ["status", "--home", str(home), "--json"]).stdout)
+    assert "tasks" not in every and [j["job_id"] for j in every["jobs"]] == [job_id]
