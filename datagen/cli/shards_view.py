@@ -7,7 +7,9 @@ Plain functions; `datagen.cli.shards` registers them.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import sys
 import textwrap
 from collections.abc import Sequence
 from pathlib import Path
@@ -149,13 +151,19 @@ def task_cells(row: TaskRow) -> list[Cell]:
     ]
 
 
-def ls(url: UrlArgument) -> None:
+def ls(
+    url: UrlArgument,
+    as_json: Annotated[bool, typer.Option("--json", help="One JSON object (every task, then the totals).")] = False,
+) -> None:
     """One row per task: object, rotation, samples, points in its refined clouds, bytes on disk, and
     whether it committed; each failed task's message follows the table."""
     from storage import open_dataset
 
     with user_errors(url):
         rows = list_tasks(open_dataset(url, dataset_options(url)))
+    if as_json:
+        _print_tasks_json(rows)
+        return
     print_rows(TASK_COLUMNS, (task_cells(row) for row in rows))  # tab-separated lines outside a terminal
     failed = [row for row in rows if row.state == FAILED]
     committed = len(rows) - len(failed)
@@ -164,6 +172,23 @@ def ls(url: UrlArgument) -> None:
     for row in failed:
         origin = f" ({row.origin})" if row.origin else ""
         say(f"failed {row.task_id}{origin}: {row.message}")
+
+
+def _print_tasks_json(rows: list[TaskRow]) -> None:
+    """`ls --json`: ``{"tasks": [...], "committed", "failed", "samples", "bytes"}``, a task a line."""
+    out = sys.stdout
+    out.write('{"tasks": [')
+    for number, row in enumerate(rows):
+        out.write(("," if number else "") + "\n" + json.dumps(dataclasses.asdict(row)))
+    failed = sum(row.state == FAILED for row in rows)
+    totals = {
+        "committed": len(rows) - failed,
+        "failed": failed,
+        "samples": sum(row.samples for row in rows),
+        "bytes": sum(row.bytes_on_disk for row in rows),
+    }
+    out.write("\n], " + json.dumps(totals)[1:] + "\n")
+    out.flush()
 
 
 # -- show -----------------------------------------------------------------------------------------

@@ -156,6 +156,30 @@ def test_ls_lists_committed_and_failed_tasks(runner: CliRunner, url: str, engine
     assert f"6 committed ({samples} samples, " in result.stdout and ", 2 failed" in result.stdout
 
 
+def test_ls_json_is_what_a_script_reads(runner: CliRunner, url: str, engine_dataset: EngineDataset) -> None:  # noqa: F811
+    """``ls --json``: every task with its counts, bytes, state and failure, then the totals."""
+    import json
+
+    dataset = open_dataset(url)
+    expected = expected_tasks(engine_dataset, dataset)
+    found = json.loads(invoke(runner, "ls", url, "--json").stdout)
+    tasks = {task["task_id"]: task for task in found["tasks"]}
+    assert sorted(tasks) == sorted(expected)
+    for task_id, want in expected.items():
+        got = tasks[task_id]
+        assert got["state"] == want["state"]
+        if want["state"] == COMMITTED:
+            assert (got["samples"], got["points"], got["bytes_on_disk"]) == (
+                want["samples"],
+                want["points"],
+                want["bytes"],
+            )
+        else:
+            assert want["message"] in got["message"]
+    assert (found["committed"], found["failed"]) == (6, 2)
+    assert found["samples"] == sum(w.get("samples", 0) for w in expected.values()) == len(dataset)
+
+
 def test_listing_counts_exact_bytes_and_skips_orphans(url: str, engine_dataset: EngineDataset) -> None:  # noqa: F811
     dataset = open_dataset(url)
     expected = expected_tasks(engine_dataset, dataset)
