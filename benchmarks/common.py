@@ -44,3 +44,13 @@ def use_test_support() -> None:
     ``support``; the benchmarks reuse them rather than keep a second copy."""
     if str(TESTS) not in sys.path:
         sys.path.insert(0, str(TESTS))
+
+
+def interruptible_child() -> None:
+    """A `subprocess.Popen` ``preexec_fn``: SIGINT back to its default in the child. A shell starts
+    background commands with SIGINT ignored, and an ignored signal stays ignored across exec (Python
+    then installs no KeyboardInterrupt handler), so a harness run with ``&`` could not stop its
+    commands cleanly."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import REPO_ROOT
+from benchmarks.common import REPO_ROOT, interruptible_child
 from benchmarks.generation.recipe_time import recipe_objects
 
 INTERRUPT_GRACE = 60.0
@@ -86,7 +86,7 @@ def run_job(label: str, command: list[str], work: Path, budget: float | None) ->
     started = time.perf_counter()
     with (work / f"{label}.log").open("wb") as log:
         process = subprocess.Popen(
-            command, cwd=REPO_ROOT, env=env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=_interruptible
+            command, cwd=REPO_ROOT, env=env, stdout=log, stderr=subprocess.STDOUT, preexec_fn=interruptible_child
         )
         try:
             process.wait(timeout=budget)
@@ -99,12 +99,6 @@ def run_job(label: str, command: list[str], work: Path, budget: float | None) ->
                 process.kill()
                 process.wait()
             return time.perf_counter() - started, True
-
-
-def _interruptible() -> None:
-    """In the child: SIGINT back to its default (a harness started in the background passes it on ignored,
-    and the budget's SIGINT would then wait for the kill)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def dataset_job(label: str, url: Path, wall: float, stopped: bool) -> Job:

@@ -210,6 +210,23 @@ def datagen() -> str:
     return str(Path(sys.executable).with_name("datagen"))
 
 
+def submit_args(objects: Path, config: Path, out: str, home: Path, *extra: str) -> list[str]:
+    """`datagen submit` of ``objects`` under ``config`` into ``out`` with its own ledger ``home``."""
+    return [
+        datagen(),
+        "submit",
+        "--objects",
+        str(objects),
+        "--config",
+        str(config),
+        "--out",
+        out,
+        "--home",
+        str(home),
+        *extra,
+    ]
+
+
 def measured(args: list[str], env: dict[str, str], log: Path, **options: Any) -> Measurement:
     print(f"== {' '.join(args[:3])} ... > {log}", flush=True)
     result = run_measured(args, cwd=REPO_ROOT, env=env, stdout=log, **options)
@@ -403,20 +420,7 @@ def real(args: argparse.Namespace) -> dict[str, Any]:
     local = work / "local"
     if not (work / "local.json").exists():
         run = measured(
-            [
-                datagen(),
-                "submit",
-                "--objects",
-                str(objects),
-                "--config",
-                str(config),
-                "--out",
-                str(local),
-                "--home",
-                str(work / "local-home"),
-                "--workers",
-                str(args.local_workers),
-            ],
+            submit_args(objects, config, str(local), work / "local-home", "--workers", str(args.local_workers)),
             env,
             work / "local.log",
         )
@@ -436,20 +440,7 @@ def real(args: argparse.Namespace) -> dict[str, Any]:
 
     def submit() -> None:
         result["run"] = run_measured(
-            [
-                datagen(),
-                "submit",
-                "--objects",
-                str(objects),
-                "--config",
-                str(config),
-                "--out",
-                out,
-                "--address",
-                address,
-                "--home",
-                str(home),
-            ],
+            submit_args(objects, config, out, home, "--address", address),
             cwd=REPO_ROOT,
             env=env,
             stdout=log,

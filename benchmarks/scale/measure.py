@@ -27,6 +27,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from benchmarks.common import interruptible_child
+
 GRACE_SECONDS = 60.0
 """How long a command stopped with SIGINT may take to clean up before it is killed."""
 
@@ -83,7 +85,7 @@ def run_measured(
             env=dict(env),
             stdout=sink,
             stderr=subprocess.STDOUT,
-            preexec_fn=_interruptible,
+            preexec_fn=interruptible_child,
         )
     stopped = threading.Event()
 
@@ -119,13 +121,6 @@ def run_measured(
         stopped=stopped.is_set(),
         extra=extra,
     )
-
-
-def _interruptible() -> None:
-    """In the child before it runs the command: SIGINT back to its default. A shell starts background
-    commands with SIGINT ignored, and an ignored signal stays ignored across exec (Python then installs
-    no KeyboardInterrupt handler), so a harness run with ``&`` could not stop its commands cleanly."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _exited(pid: int, seconds: float) -> bool:
