@@ -82,6 +82,8 @@ def resume(
                 num_cpus=settings.num_workers,
                 storage_options=options,
                 refiner_gpus=settings.refiner_gpus,
+                shared_refiner=settings.shared_refiner,
+                refiner_batch=settings.refiner_batch,
                 progress=progress,
                 body=body,
             )

@@ -36,6 +36,12 @@ class RunSettings(BaseModel):
     refiner_gpus: float = Field(0.0, ge=0.0, le=1.0)
     """Share of a GPU each task reserves; > 0 runs the poco refiner on CUDA (CPU and GPU results can
     differ in borderline keys, so keep one device per dataset)."""
+    shared_refiner: bool = False
+    """One POCO network per node, shared by its tasks (on its GPU with ``refiner_gpus`` > 0), instead
+    of one per worker process (`datagen.engine.refiner_host`); the same samples either way."""
+    refiner_batch: int = Field(1, ge=1, le=256)
+    """Network jobs per encoder call on a shared refiner. 1 gives the samples of a refiner in the task
+    bit for bit; more is for a GPU (latents move by float rounding, ~1e-7)."""
     storage_timeout: float = Field(default_factory=lambda: _env_number("DATAGEN_STORAGE_TIMEOUT", 20.0), gt=0.0)
     """Seconds to connect to, or wait on, an object store per request (DATAGEN_STORAGE_TIMEOUT)."""
     storage_retries: int = Field(default_factory=lambda: int(_env_number("DATAGEN_STORAGE_RETRIES", 4)), ge=1, le=20)

@@ -41,12 +41,32 @@ GpusOption = Annotated[
 ]
 
 
+SharedOption = Annotated[
+    bool,
+    typer.Option(
+        "--shared-refiner",
+        help="One POCO network per node shared by its tasks (on its GPU with --refiner-gpus); same samples.",
+    ),
+]
+BatchOption = Annotated[
+    int,
+    typer.Option(
+        "--refiner-batch",
+        min=1,
+        max=256,
+        help="Jobs per encoder call on a shared refiner (default 1: bit for bit; more for a GPU).",
+    ),
+]
+
+
 def _settings(
     home: Path | None,
     out: str | None = None,
     address: str | None = None,
     workers: int | None = None,
     refiner_gpus: float = 0.0,
+    shared_refiner: bool = False,
+    refiner_batch: int = 1,
 ) -> RunSettings:
     base = RunSettings()
     return RunSettings(
@@ -55,6 +75,8 @@ def _settings(
         ray_address=address or base.ray_address,
         num_workers=workers,
         refiner_gpus=refiner_gpus,
+        shared_refiner=shared_refiner,
+        refiner_batch=refiner_batch,
     )
 
 
@@ -124,13 +146,15 @@ def submit(
     detach: Annotated[bool, typer.Option("--detach", help="Only enqueue for a running 'datagen serve'.")] = False,
     workers: WorkersOption = None,
     refiner_gpus: GpusOption = 0.0,
+    shared_refiner: SharedOption = False,
+    refiner_batch: BatchOption = 1,
     home: HomeOption = None,
 ) -> None:
     """Create a dataset job and run it now with a live progress display (or enqueue it)."""
     from datagen import api
 
     with user_errors():
-        settings = _settings(home, out, address, workers, refiner_gpus)
+        settings = _settings(home, out, address, workers, refiner_gpus, shared_refiner, refiner_batch)
         job = api.enqueue(objects, config, settings)
         ledger = api.ledger_for(settings)
         try:
@@ -158,13 +182,15 @@ def resume(
     address: AddressOption = None,
     workers: WorkersOption = None,
     refiner_gpus: GpusOption = 0.0,
+    shared_refiner: SharedOption = False,
+    refiner_batch: BatchOption = 1,
     home: HomeOption = None,
 ) -> None:
     """Run what is not done of a job again; committed tasks are kept, never recomputed."""
     from datagen import api
 
     with user_errors():
-        settings = _settings(home, None, address, workers, refiner_gpus)
+        settings = _settings(home, None, address, workers, refiner_gpus, shared_refiner, refiner_batch)
         with _progress_display("tasks") as update:
             job = api.resume(job_id, settings, progress=update)
         _report(job)
@@ -303,6 +329,8 @@ def serve(
     address: AddressOption = None,
     workers: WorkersOption = None,
     refiner_gpus: GpusOption = 0.0,
+    shared_refiner: SharedOption = False,
+    refiner_batch: BatchOption = 1,
     home: HomeOption = None,
     poll: Annotated[float, typer.Option(help="Seconds between looks at the queue.")] = 2.0,
     once: Annotated[bool, typer.Option("--once", help="Exit when the queue is empty.")] = False,
@@ -312,7 +340,7 @@ def serve(
 
     with user_errors():
         serve_loop(
-            _settings(home, None, address, workers, refiner_gpus),
+            _settings(home, None, address, workers, refiner_gpus, shared_refiner, refiner_batch),
             poll=poll,
             once=once,
             report=say,

@@ -178,10 +178,19 @@ def _remote_execute(
     device: str,
     config_hash: str,
     schema_version: int,
+    hosts: str = "",
 ) -> tuple[TaskOutcome, str]:
+    """``body`` in a Ray task; with ``hosts`` (the name prefix of the job's shared refiner hosts) its
+    network runs on its node's host, or, on a node without one, in the task on the CPU."""
     import ray
 
-    outcome = body(task, config, out, attempt_id, storage_options, device, config_hash, schema_version)
+    network = None
+    if hosts:
+        from datagen.engine.refiner_host import node_network
+
+        network = node_network(hosts)
+        device = device if network is not None else "cpu"
+    outcome = body(task, config, out, attempt_id, storage_options, device, config_hash, schema_version, network)
     context = ray.get_runtime_context()
     return outcome, f"{context.get_node_id()[:12]}@{socket.gethostname()}"
 
@@ -215,6 +224,8 @@ def run_job(
     refiner_gpus: float = 0.0,
     wait_for_others: bool = True,
     body: TaskBody = execute_task,
+    shared_refiner: bool = False,
+    refiner_batch: int = 1,
 ) -> Job:
     """Run every runnable task of a job to completion (or cancellation); returns the job.
 
@@ -226,7 +237,9 @@ def run_job(
     With ``wait_for_others`` the call returns only when the job is finished or cancelled, also when
     other drivers hold some of its tasks; without it, it returns as soon as it can claim nothing.
     ``body`` is what each task runs (`datagen.engine.worker.TaskBody`): `execute_task` unless the
-    engine alone is measured or tested.
+    engine alone is measured or tested. ``shared_refiner`` puts a POCO refiner's network in one host
+    per node (on its GPU with ``refiner_gpus`` > 0), which runs the jobs of every task there,
+    ``refiner_batch`` jobs per encoder call (`datagen.engine.refiner_host`); tasks then reserve no GPU.
     """
     import ray
 
@@ -250,11 +263,19 @@ def run_job(
         )
     owner = f"driver-{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:6]}"
     ledger.start_job(job_id, owner, LEASE_SECONDS)
+    hosts: list[Any] = []
     try:
-        remote = ray.remote(num_cpus=1, num_gpus=refiner_gpus, max_retries=TASK_RETRIES, retry_exceptions=False)(
+        device = "cuda" if refiner_gpus > 0 else "cpu"
+        prefix = ""
+        if shared_refiner and config.refiner == "poco" and config.finetune_steps == 0:
+            from datagen.engine.refiner_host import start_hosts
+
+            prefix = f"datagen-refiner-{owner}"
+            hosts = start_hosts(config, prefix, device, refiner_batch)
+        task_gpus = 0.0 if hosts else refiner_gpus
+        remote = ray.remote(num_cpus=1, num_gpus=task_gpus, max_retries=TASK_RETRIES, retry_exceptions=False)(
             _remote_execute
         )
-        device = "cuda" if refiner_gpus > 0 else "cpu"
         capacity = max_in_flight or max(1, int(ray.cluster_resources().get("CPU", 1)))
         state = JobProgress(total=total)
         _count(ledger, job_id, state)
@@ -283,6 +304,7 @@ def run_job(
                         device,
                         info.config_hash,
                         info.schema_version,
+                        prefix,
                     )
                     in_flight[ref] = (task, claim.attempt_id)
             if in_flight:
@@ -317,6 +339,10 @@ def run_job(
             progress(state)
     finally:
         ledger.leave(job_id, owner)
+        if hosts:
+            from datagen.engine.refiner_host import stop_hosts
+
+            stop_hosts(hosts)
     return ledger.job(job_id)
 
 

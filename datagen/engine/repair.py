@@ -78,6 +78,8 @@ def repair_dataset(url: str, settings: RunSettings, progress: ProgressCallback |
                 storage_options=options,
                 progress=progress,
                 refiner_gpus=settings.refiner_gpus,
+                shared_refiner=settings.shared_refiner,
+                refiner_batch=settings.refiner_batch,
             )
         finalise(location)
         not_done = sorted(

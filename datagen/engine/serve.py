@@ -97,6 +97,8 @@ def serve(
                         address=settings.ray_address,
                         num_cpus=settings.num_workers,
                         refiner_gpus=settings.refiner_gpus,
+                        shared_refiner=settings.shared_refiner,
+                        refiner_batch=settings.refiner_batch,
                         storage_options=settings.storage_options(job.out),
                         wait_for_others=False,
                     )

@@ -17,7 +17,7 @@ import time
 import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 from datagen.engine.job_plan import object_spec
 from datagen.engine.shard_payload import task_payload
@@ -33,6 +33,9 @@ from schemas.index import failure_record
 from schemas.jobs import ObjectRef, TaskSpec
 from schemas.version import SCHEMA_VERSION
 from storage import is_s3, is_transient, open_location, read_commit, write_failure, write_task
+
+if TYPE_CHECKING:
+    from datagen.pipeline.refine.poco.network_jobs import NetworkRunner
 
 T = TypeVar("T")
 
@@ -73,6 +76,7 @@ class TaskBody(Protocol):
         device: str = "cpu",
         config_hash: str | None = None,
         schema_version: int = SCHEMA_VERSION,
+        network: NetworkRunner | None = None,
     ) -> TaskOutcome: ...
 
 
@@ -85,6 +89,7 @@ def empty_task(
     device: str = "cpu",
     config_hash: str | None = None,
     schema_version: int = SCHEMA_VERSION,
+    network: NetworkRunner | None = None,
 ) -> TaskOutcome:
     """A `TaskBody` that computes and writes nothing: done at once with ``rotation + 1`` samples (so sums
     over tasks are checkable). For measuring the engine's own cost per task (``benchmarks/scale``) and
@@ -101,6 +106,7 @@ def execute_task(
     device: str = "cpu",
     config_hash: str | None = None,
     schema_version: int = SCHEMA_VERSION,
+    network: NetworkRunner | None = None,
 ) -> TaskOutcome:
     """Run one task end to end and commit its shard under a unique execution id.
 
@@ -108,6 +114,8 @@ def execute_task(
     ``config_hash`` is the dataset's: a worker whose files give another hash (other shipped weights
     on this node) fails the task rather than mix two refiners in one dataset. ``schema_version`` is
     the dataset's layout, which its shards keep (a resumed version-1 dataset stays version 1).
+    ``network`` runs a learned refiner's network elsewhere (its node's shared host,
+    `datagen.engine.refiner_host`); where its time went joins the task's steps.
     """
     started = time.perf_counter()
     clock = StepClock()
@@ -126,11 +134,13 @@ def execute_task(
                 f"this worker's files give config hash {generation.config_hash()[:12]}, the dataset's is "
                 f"{config_hash[:12]} ({files}): install the same datagen and weights on every node"
             )
-        refiner = make_refiner(generation, device)  # first: it may import torch, which the bound below fixes
+        refiner = make_refiner(generation, device, network)  # first: it may import torch, which the bound below fixes
         with single_threaded_blas(), fixed_torch_threads():
             with clock.step("prepare"):  # ~0 when this worker prepared the object for another rotation
                 prepared = _prepared(spec.object.model_dump_json(), frozen)
             result = run_task(prepared, spec.rotation, generation, _view_space(frozen), refiner, clock=clock)
+        for name, (cpu, wall) in ({} if network is None else network.steps()).items():
+            clock.add(name, cpu, wall)
     except DatagenError as exc:
         failure = failure_record(spec.task_id, str(exc), object_name=spec.object.name, origin=spec.object.origin)
         write_failure(location, failure)

@@ -35,6 +35,11 @@ class StepClock:
             self.cpu[name] = self.cpu.get(name, 0.0) + max(0.0, time.process_time() - cpu)
             self.wall[name] = self.wall.get(name, 0.0) + max(0.0, time.perf_counter() - wall)
 
+    def add(self, name: str, cpu: float, wall: float) -> None:
+        """Seconds of a step spent outside this process (a node's shared refiner host)."""
+        self.cpu[name] = self.cpu.get(name, 0.0) + cpu
+        self.wall[name] = self.wall.get(name, 0.0) + wall
+
     def wall_of(self, *names: str) -> float:
         return sum(self.wall.get(name, 0.0) for name in names)
 

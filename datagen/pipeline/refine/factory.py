@@ -19,10 +19,12 @@ from datagen.pipeline.refine.none import NoRefiner
 from schemas.config import GenerationConfig
 
 if TYPE_CHECKING:
+    from datagen.pipeline.refine.poco.network_jobs import NetworkRunner
     from datagen.pipeline.refine.poco.refiner import PocoRefiner
 
-RefinerBuilder = Callable[[GenerationConfig, str], Refiner]
-"""(config, device) -> the refiner; ``device`` only matters to a learned refiner."""
+RefinerBuilder = Callable[[GenerationConfig, str, "NetworkRunner | None"], Refiner]
+"""(config, device, network) -> the refiner; ``device`` and ``network`` (who runs a network's jobs:
+a node's shared host) only matter to a learned refiner."""
 
 
 def poco_weights_path(config: GenerationConfig) -> Path:
@@ -49,15 +51,15 @@ def _load_poco(path: str, preset: str | None, mtime_ns: int, device: str) -> tup
     return model, weights_sha256(Path(path))
 
 
-def build_none(config: GenerationConfig, device: str) -> Refiner:
+def build_none(config: GenerationConfig, device: str, network: NetworkRunner | None = None) -> Refiner:
     return NoRefiner()
 
 
-def build_carve(config: GenerationConfig, device: str) -> Refiner:
+def build_carve(config: GenerationConfig, device: str, network: NetworkRunner | None = None) -> Refiner:
     return CarveRefiner(config)
 
 
-def build_poisson(config: GenerationConfig, device: str) -> Refiner:
+def build_poisson(config: GenerationConfig, device: str, network: NetworkRunner | None = None) -> Refiner:
     try:
         from datagen.pipeline.refine.poisson import PoissonRefiner
     except ImportError as error:
@@ -67,11 +69,14 @@ def build_poisson(config: GenerationConfig, device: str) -> Refiner:
     return PoissonRefiner(config)
 
 
-def build_poco(config: GenerationConfig, device: str) -> Refiner:
-    return load_poco_refiner(config, device, config.poco_preset)
+def build_poco(config: GenerationConfig, device: str, network: NetworkRunner | None = None) -> Refiner:
+    """With ``network`` (a shared host runs the network) the task keeps a CPU copy for its preset."""
+    return load_poco_refiner(config, "cpu" if network is not None else device, config.poco_preset, network)
 
 
-def load_poco_refiner(config: GenerationConfig, device: str = "cpu", preset: str | None = None) -> PocoRefiner:
+def load_poco_refiner(
+    config: GenerationConfig, device: str = "cpu", preset: str | None = None, network: NetworkRunner | None = None
+) -> PocoRefiner:
     """The ``poco`` refiner of the config's weights (`poco_weights_path`), threshold and fine-tuning.
 
     A worker's preset is the config's (`build_poco`); ``datagen poco eval`` passes None, the preset
@@ -87,7 +92,7 @@ def load_poco_refiner(config: GenerationConfig, device: str = "cpu", preset: str
     if not path.is_file():
         raise ConfigError(f"{path}: POCO weights file not found; set poco_weights to a weights file or 'builtin'")
     model, sha = _load_poco(str(path.resolve()), preset, path.stat().st_mtime_ns, device)
-    return PocoRefiner(config, model, sha, config.poco_threshold, config.finetune_steps, device=device)
+    return PocoRefiner(config, model, sha, config.poco_threshold, config.finetune_steps, device=device, network=network)
 
 
 BUILDERS: dict[str, RefinerBuilder] = {
@@ -98,10 +103,11 @@ BUILDERS: dict[str, RefinerBuilder] = {
 }
 
 
-def make_refiner(config: GenerationConfig, device: str = "cpu") -> Refiner:
-    """The config's refiner; ``device`` ('cpu' or 'cuda') places a learned one (RunSettings.refiner_gpus)."""
+def make_refiner(config: GenerationConfig, device: str = "cpu", network: NetworkRunner | None = None) -> Refiner:
+    """The config's refiner; ``device`` ('cpu' or 'cuda') places a learned one (RunSettings.refiner_gpus),
+    ``network`` runs its network elsewhere (RunSettings.shared_refiner)."""
     builder = BUILDERS.get(config.refiner)
     if builder is None:
         *others, last = (repr(name) for name in BUILDERS)
         raise ConfigError(f"refiner = {config.refiner!r} is not available; use {', '.join(others)} or {last}")
-    return builder(config, device)
+    return builder(config, device, network)

@@ -110,7 +110,7 @@ def network_tensors(
     return points, dirs, q
 
 
-def _on_device(
+def place_on_device(
     model: PocoModel,
     points: Tensor,
     directions: Tensor,
@@ -147,7 +147,7 @@ def forward_logits(
     """Logits (B, 2, M) of the queries in one differentiable forward (training, test-time fine-tuning;
     ``fast=False``: the encoder's original operations, `PocoModel.encode`)."""
     with exact_float32(device):
-        points, features, tables, queries = _on_device(
+        points, features, tables, queries = place_on_device(
             model, points, directions, queries, generator, device, knn_backend
         )
         logits: Tensor = model(points, features, tables, queries, tables["proj_indices"], fast=fast)
@@ -193,18 +193,26 @@ def predict_probs(
     ``fast`` (the default) runs under ``torch.inference_mode`` with `PocoModel.decode_inference`;
     ``fast=False`` is the original execution (``no_grad``, `PocoModel.decode` in chunks of
     `DECODE_CHUNK`). Both give bit-identical probabilities (tests/pipeline/test_refine_speed.py).
-    ``knn_backend`` builds the neighbour tables (`_on_device`).
+    ``knn_backend`` builds the neighbour tables (`place_on_device`).
     """
     if queries.shape[0] == 0:
         return np.zeros(0, dtype=np.float32)
     pick = choose_inputs(inputs.shape[0], model.preset.num_input_points, rng)
     points, dirs, q = network_tensors(inputs[pick], directions[pick], queries)
     with torch.inference_mode() if fast else torch.no_grad(), exact_float32(device):
-        points, features, tables, q = _on_device(model, points, dirs, q, generator, device, knn_backend)
+        points, features, tables, q = place_on_device(model, points, dirs, q, generator, device, knn_backend)
         latents = model.encode(points, features, tables, fast)
-        if fast:
-            logits = model.decode_inference(latents, points, q, tables["proj_indices"], DECODE_CHUNK)
-        else:
-            logits = model.decode(latents, points, q, tables["proj_indices"], chunk_size=DECODE_CHUNK)
-        prob = torch.softmax(logits.float(), dim=1)[0, 1]
+        return decode_probs(model, latents, points, q, tables["proj_indices"], fast)
+
+
+def decode_probs(
+    model: PocoModel, latents: Tensor, points: Tensor, queries: Tensor, knn: Tensor, fast: bool = True
+) -> npt.NDArray[np.float32]:
+    """p(inside) of one observation's queries from its latents (1, L, n): `PocoModel.decode_inference`
+    when ``fast``, else `PocoModel.decode` in chunks of `DECODE_CHUNK` (the same bits)."""
+    if fast:
+        logits = model.decode_inference(latents, points, queries, knn, DECODE_CHUNK)
+    else:
+        logits = model.decode(latents, points, queries, knn, chunk_size=DECODE_CHUNK)
+    prob = torch.softmax(logits.float(), dim=1)[0, 1]
     return prob.cpu().numpy().astype(np.float32)

@@ -44,6 +44,7 @@ import copy
 import hashlib
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
@@ -62,10 +63,17 @@ from datagen.pipeline.refine.poco.inputs import (
     forward_logits,
     network_tensors,
     observation_inputs,
-    predict_probs,
     query_keys,
 )
 from datagen.pipeline.refine.poco.network import PocoModel
+from datagen.pipeline.refine.poco.network_jobs import (
+    JOB_QUERIES,
+    LocalNetwork,
+    NetworkJob,
+    NetworkRunner,
+    network_job,
+    run_network_jobs,
+)
 from datagen.pipeline.refine.poco.spatial import KnnBackend, pykdtree_available
 from schemas.config import GenerationConfig
 
@@ -94,6 +102,7 @@ class PocoRefiner:
         device: str | torch.device = "cpu",
         *,
         fast: bool = True,
+        network: NetworkRunner | None = None,
     ) -> None:
         self.config = config
         self.model = model.eval()
@@ -113,6 +122,9 @@ class PocoRefiner:
         tests that check so. A property of this refiner: every call it makes passes it on."""
         self.depth_buffers: DepthBuffers | None = DepthBuffers() if fast else None
         self.view_bands: ViewBands | None = ViewBands(config.band_keys_sq) if fast else None
+        self.network: NetworkRunner = network or LocalNetwork(self.model, self.device, self.knn_backend, fast=fast)
+        """Who runs the network jobs: this process (`LocalNetwork`), or a node's shared host (the
+        engine's `datagen.engine.refiner_host`); the same probabilities either way."""
         self._inside = False
 
     @contextmanager
@@ -133,45 +145,60 @@ class PocoRefiner:
                 self._inside = False
 
     def refine(self, requests: Sequence[RefineRequest]) -> list[npt.NDArray[np.int64]]:
+        """R(O) of each request: every request's network job is prepared here, then the jobs go to
+        `network` together (in calls of at most `network_jobs.JOB_QUERIES` queries)."""
+        out: list[npt.NDArray[np.int64]] = []
         with self.execution():
-            return [self.refine_one(request) for request in requests]
+            batch: list[_Prepared] = []
+            for request in requests:
+                batch.append(self._prepared(request))
+                if sum(prepared.queries.size for prepared in batch) >= JOB_QUERIES:
+                    out.extend(queries[prob > self.threshold] for queries, prob in self._answered(batch))
+                    batch = []
+            out.extend(queries[prob > self.threshold] for queries, prob in self._answered(batch))
+        return out
 
     def probabilities(self, request: RefineRequest) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
         """The queried keys of the request and p(inside) of each."""
         with self.execution():
-            return self._probabilities(request)
+            return self._answered([self._prepared(request)])[0]
 
-    def _probabilities(self, request: RefineRequest) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
+    def _answered(self, batch: Sequence[_Prepared]) -> list[tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]]:
+        """Each prepared request's queries and their probabilities: the jobs not yet answered go to
+        `network` in one call."""
+        sent = [prepared.job for prepared in batch if prepared.job is not None and prepared.answer is None]
+        answers = iter(self.network.run(sent) if sent else [])
+        out = []
+        for prepared in batch:
+            if prepared.answer is not None:
+                prob = prepared.answer
+            elif prepared.job is None:
+                prob = np.empty(0, dtype=np.float32)
+            else:
+                prob = next(answers)
+            out.append((prepared.queries, prob))
+        return out
+
+    def _prepared(self, request: RefineRequest) -> _Prepared:
+        """The request's queried keys and the network job that classifies them (none without queries)."""
         config = self.config
         observation = request.observation
         if observation.keys.size == 0:
-            return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float32)
+            return _Prepared(np.empty(0, dtype=np.int64))
         _, queries, _ = query_keys(observation, config, self.depth_buffers, self.view_bands)
         if queries.size == 0:
-            return queries, np.empty(0, dtype=np.float32)
+            return _Prepared(queries)
         rng = stream(request.seed, request.object_id, request.rotation, Purpose.REFINER_NOISE, request.mask)
         generator = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))
         inputs, directions = observation_inputs(observation, config.voxel_size, config.grid_offset)
-        model = self.model
-        if self.finetune_steps > 0:
-            model = self._finetuned(request, inputs, directions, rng, generator)
         centres = key_centres(unpack_keys(queries), config.voxel_size, config.grid_offset)
-        prob = predict_probs(
-            model,
-            inputs,
-            directions,
-            centres,
-            rng,
-            generator,
-            self.device,
-            fast=self.fast,
-            knn_backend=self.knn_backend,
-        )
-        return queries, prob
-
-    def refine_one(self, request: RefineRequest) -> npt.NDArray[np.int64]:
-        queries, prob = self.probabilities(request)
-        return queries[prob > self.threshold]
+        if self.finetune_steps > 0:  # a network of its own: run here, on this refiner's device
+            model = self._finetuned(request, inputs, directions, rng, generator)
+            job = network_job(inputs, directions, centres, model.preset.num_input_points, rng, generator)
+            answer = run_network_jobs(model, [job], self.device, self.knn_backend, fast=self.fast)[0]
+            return _Prepared(queries, job, answer)
+        n = self.model.preset.num_input_points
+        return _Prepared(queries, network_job(inputs, directions, centres, n, rng, generator, self.weights_id))
 
     def _finetuned(
         self,
@@ -202,3 +229,13 @@ class PocoRefiner:
             loss.backward()
             optimizer.step()
         return model.eval()
+
+
+@dataclass(frozen=True)
+class _Prepared:
+    """A request ready for the network: its queried keys, their job, and the answer when a fine-tuned
+    copy of the network already gave it."""
+
+    queries: npt.NDArray[np.int64]
+    job: NetworkJob | None = None
+    answer: npt.NDArray[np.float32] | None = None
