@@ -9,6 +9,8 @@ the first N when time is short, and the report says so) at the config's rotation
 `datagen submit` as a user makes them, each its own ledger and dataset under ``--work``:
 
 - ``device``: ``--refiner-gpus`` 1 / ``--workers`` (the tasks share the GPU), on ``--device cuda``;
+  with ``--shared-refiner`` one host holds the network on the GPU and runs every task's jobs
+  (``--refiner-batch`` jobs per encoder call), the tasks reserving no GPU;
 - ``cpu``: the same job with the refiner on the CPU, every core a worker.
 
 Each job is stopped at ``--budget`` seconds (SIGINT: the job is cancelled, what was committed stays)
@@ -69,13 +71,17 @@ class Agreement:
     same_points: int
 
 
-def submit_command(objects: Path, out: Path, config: Path | None, workers: int, gpus: float) -> list[str]:
+def submit_command(
+    objects: Path, out: Path, config: Path | None, workers: int, gpus: float, shared: bool = False, batch: int = 1
+) -> list[str]:
     command = [sys.executable, "-m", "datagen.cli.main", "submit", "--objects", str(objects), "--out", str(out)]
     command += ["--workers", str(workers)]
     if config is not None:
         command += ["--config", str(config)]
     if gpus > 0:
         command += ["--refiner-gpus", f"{gpus:g}"]
+    if shared:
+        command += ["--shared-refiner", "--refiner-batch", str(batch)]
     return command
 
 
@@ -157,12 +163,14 @@ def minutes(seconds: float) -> str:
 def report(jobs: Sequence[Job], found: Agreement | None, setup: dict[str, str]) -> list[str]:
     lines = ["# The recipe's training set on a GPU and on the CPU (`benchmarks/generation/gpu_recipe.py`)", ""]
     lines += [f"- {name}: {value}" for name, value in setup.items()]
-    lines += ["", "| job | wall | stopped at the budget | tasks | samples | task CPU-s | refinement CPU-s |"]
-    lines += ["|---|---:|---|---:|---:|---:|---:|"]
+    header = "| job | wall | stopped at the budget | tasks | samples | task CPU-s | refinement CPU-s | host CPU-s |"
+    lines += ["", header]
+    lines += ["|---|---:|---|---:|---:|---:|---:|---:|"]
     for job in jobs:
         refine = job.step_cpu.get("refine_views", 0.0) + job.step_cpu.get("refine_cases", 0.0)
+        host = job.step_cpu.get("refiner_host", 0.0)  # a shared host's part (its CPU, not the task's)
         cells = [job.label, minutes(job.wall), "yes" if job.stopped else "no", f"{job.tasks:,}", f"{job.samples:,}"]
-        lines.append("| " + " | ".join([*cells, f"{job.task_cpu:,.0f}", f"{refine:,.0f}"]) + " |")
+        lines.append("| " + " | ".join([*cells, f"{job.task_cpu:,.0f}", f"{refine:,.0f}", f"{host:,.0f}"]) + " |")
     if len(jobs) == 2 and jobs[1].wall > 0:
         lines += ["", f"CPU job wall / device job wall: {jobs[1].wall / max(jobs[0].wall, 1e-9):.2f}x"]
     if found is not None:
@@ -184,6 +192,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, help="generation config (default: the default config)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="workers per job (all cores)")
     parser.add_argument("--budget", type=float, help="seconds after which a job is stopped")
+    parser.add_argument("--shared-refiner", action="store_true", help="the device job's network on one shared host")
+    parser.add_argument("--refiner-batch", type=int, default=1, help="the shared host's jobs per encoder call")
     parser.add_argument("--out", type=Path, help="write the report here (a new file)")
     parser.add_argument("--replace", action="store_true", help="let --out replace an existing file")
     args = parser.parse_args(argv)
@@ -207,7 +217,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     gpus = 1.0 / args.workers if args.device == "cuda" else 0.0
     jobs = []
     for label, share in (("device", gpus), ("cpu", 0.0)):
-        command = submit_command(chosen, args.work / label, args.config, args.workers, share)
+        shared = args.shared_refiner and label == "device"
+        batch = args.refiner_batch
+        command = submit_command(chosen, args.work / label, args.config, args.workers, share, shared, batch)
         wall, stopped = run_job(label, command, args.work, args.budget)
         jobs.append(dataset_job(label, args.work / label, wall, stopped))
         print(f"{label}: {minutes(wall)}{' (stopped)' if stopped else ''}", file=sys.stderr, flush=True)
@@ -217,7 +229,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         "machine": f"{platform.node()}: {os.cpu_count()} CPUs, device {args.device}",
         "objects": f"{len(lines)} lines of {objects}" + (" (a subset: time was short)" if args.objects_count else ""),
         "config": str(args.config or "the default config"),
-        "jobs": f"{args.workers} workers each; the device job's refiner on {args.device} ({gpus:g} GPU a task)",
+        "jobs": f"{args.workers} workers each; the device job's refiner on {args.device} "
+        + (
+            f"(one shared host, {args.refiner_batch} jobs per encoder call)"
+            if args.shared_refiner
+            else f"({gpus:g} GPU a task)"
+        ),
         "budget": f"{args.budget:g} s a job" if args.budget else "none",
     }
     text = "\n".join(report(jobs, found, setup))

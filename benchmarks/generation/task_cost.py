@@ -6,6 +6,8 @@
     python -m benchmarks.generation.task_cost --configs before.toml after.toml  # two configs, one invocation
     python -m benchmarks.generation.task_cost --original --subset     # before/after issue 24's refinement speed-ups
     python -m benchmarks.generation.task_cost --render before.json after.json   # two saved runs, compared
+    python -m benchmarks.generation.task_cost --subset --paths worker shared     # the refiner in the task and shared
+    python -m benchmarks.generation.task_cost --subset --device cuda --paths worker shared --refiner-batch 16
 
 For every object it runs one task (rotation 0) in this process exactly as a worker does
 (`datagen.engine.worker.execute_task`: prepare, `run_task` with its `StepClock`, shard payload, write
@@ -35,6 +37,14 @@ first with the POCO refiner's original execution (``PocoRefiner(fast=False)``: t
 24's speed-ups, same outputs) and then as a worker runs it, task by task in turns so both see the
 same machine. Floors are the best of ``--floor-repeats``
 runs (one when a run takes over `LONG_FLOOR` seconds).
+
+``--paths`` measures each config on each path a refiner's network can take (issue 41): ``worker`` (in
+the task's process, as every worker without ``--shared-refiner``) and ``shared`` (a node's shared
+refiner host, here in a second process fed through a pipe, as a Ray actor is: the task's steps keep
+its own CPU, and ``refiner_host`` / ``refiner_queue`` say what the host spent and what the task waited
+on it). ``--device cuda`` puts the network on the GPU on either path; ``--refiner-batch`` is the host's
+jobs per encoder call. On the shared path the network's FLOPs and neighbour searches run in the host,
+so the refine steps have no floor there.
 """
 
 from __future__ import annotations
@@ -51,9 +61,11 @@ import contextlib  # noqa: E402
 import dataclasses  # noqa: E402
 import importlib.metadata  # noqa: E402
 import json  # noqa: E402
+import multiprocessing  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
+import threading  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable, Iterator, Sequence  # noqa: E402
 from dataclasses import dataclass, field  # noqa: E402
@@ -73,6 +85,7 @@ from datagen.pipeline.objects.prepare import load_mesh, prepare_object  # noqa: 
 from datagen.pipeline.objects.spec import ObjectSpec  # noqa: E402
 from datagen.pipeline.refine import make_refiner  # noqa: E402
 from datagen.pipeline.refine.base import Refiner  # noqa: E402
+from datagen.pipeline.refine.poco.network_jobs import NetworkJob, NetworkReply, RemoteNetwork  # noqa: E402
 from datagen.pipeline.refine.poco.refiner import PocoRefiner  # noqa: E402
 from datagen.pipeline.setcover import cover_model, highs_solver, minimal_masks, popcount  # noqa: E402
 from datagen.pipeline.step_timing import StepClock  # noqa: E402
@@ -560,7 +573,12 @@ def measure_task(
             forget_builtins()  # a worker builds a built-in once per process: count that build
             with clock.step("prepare"):
                 prepared = prepare_object(spec, config)
+            before = refiner.network.steps() if isinstance(refiner, PocoRefiner) else {}
             result = run_task(prepared, rotation, config, view_space, refiner, clock=clock)
+            after = refiner.network.steps() if isinstance(refiner, PocoRefiner) else {}
+        for name, (cpu, wall) in after.items():  # a shared host's part, as `execute_task` adds it
+            cpu_before, wall_before = before.get(name, (0.0, 0.0))
+            clock.add(name, cpu - cpu_before, wall - wall_before)
         with clock.step("write"):
             payload = task_payload(result, config)
             write_task(open_location(scratch), payload, "bench")
@@ -646,8 +664,10 @@ class StepRow:
 
 
 def step_rows(costs: Sequence[TaskCost]) -> list[StepRow]:
-    """Per step, summed over the tasks: CPU-s, wall s, share of the steps' CPU, floor and ratio."""
+    """Per step, summed over the tasks: CPU-s, wall s, share of the steps' CPU, floor and ratio; the
+    steps of `TASK_STEPS` first, then any others (a shared host's ``refiner_host``, ``refiner_queue``)."""
     steps = [s for s in TASK_STEPS if any(s in c.cpu for c in costs)]
+    steps += sorted({s for c in costs for s in c.cpu} - set(steps))
     total = sum(sum(c.cpu.values()) for c in costs)
     rows = []
     for step in steps:
@@ -920,6 +940,15 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         action="store_true",
         help="also measure each config with the POCO refiner's original execution (before issue 24), in turns",
     )
+    parser.add_argument(
+        "--paths",
+        nargs="+",
+        choices=PATHS,
+        default=["worker"],
+        help="where the refiner's network runs: in the task (worker) and/or a shared host (default: worker)",
+    )
+    parser.add_argument("--device", default="cpu", help="the refiner network's device: cpu or cuda (default cpu)")
+    parser.add_argument("--refiner-batch", type=int, default=1, help="the shared host's jobs per encoder call")
     parser.add_argument("--rotation", type=int, default=0, help="the task's rotation (default 0)")
     parser.add_argument("--floor-repeats", type=int, default=3, help="runs per floor; the best counts (default 3)")
     parser.add_argument("--no-warm-up", action="store_true", help="skip the untimed warm-up task")
@@ -937,6 +966,58 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         help="measure nothing: report saved runs (--save-json files), several as one comparison (before/after)",
     )
     return parser.parse_args(argv)
+
+
+PATHS = ("worker", "shared")
+
+
+def _serve_host(connection: Any, config_json: str, device: str, encoder_batch: int) -> None:
+    """A shared refiner host in its own process (`datagen.engine.refiner_host.RefinerHost`, the
+    body of the engine's actor), answering lists of jobs from a pipe until it reads None."""
+    from datagen.engine.refiner_host import RefinerHost
+
+    limit_threads()
+    host = RefinerHost(config_json, device, encoder_batch)
+    while (jobs := connection.recv()) is not None:
+        try:
+            connection.send(host.run(jobs))
+        except Exception as error:  # the caller raises it
+            connection.send(error)
+
+
+@contextlib.contextmanager
+def host_process(config: GenerationConfig, device: str, encoder_batch: int) -> Iterator[RemoteNetwork]:
+    """A refiner host in a second process and a task-side network that calls it (one call at a time)."""
+    context = multiprocessing.get_context("spawn")
+    ours, theirs = context.Pipe()
+    process = context.Process(target=_serve_host, args=(theirs, config.model_dump_json(), device, encoder_batch))
+    process.start()
+    lock = threading.Lock()
+
+    def call(jobs: list[NetworkJob]) -> NetworkReply:
+        with lock:
+            ours.send(jobs)
+            reply = ours.recv()
+        if isinstance(reply, BaseException):
+            raise reply
+        return reply
+
+    try:
+        yield RemoteNetwork(call)
+    finally:
+        ours.send(None)
+        process.join(timeout=30)
+        if process.is_alive():
+            process.kill()
+
+
+def on_path(refiner: Refiner, network: RemoteNetwork) -> Refiner:
+    """The same POCO refiner with its network on a shared host; any other refiner as it is."""
+    if not isinstance(refiner, PocoRefiner):
+        return refiner
+    return PocoRefiner(
+        refiner.config, refiner.model, refiner.weights_id, refiner.threshold, refiner.finetune_steps, network=network
+    )
 
 
 def original_execution(refiner: Refiner) -> Refiner:
@@ -970,12 +1051,19 @@ def measure(args: argparse.Namespace) -> Run:
         flush=True,
     )
     variants: list[tuple[str, str, GenerationConfig, Refiner]] = []
+    hosts = contextlib.ExitStack()
     for label, path in zip(labels, config_paths, strict=True):
         config = load_config(path)
-        refiner = make_refiner(config)
+        refiner = make_refiner(config, args.device)
         if args.original:
             variants.append((f"{label}-original", str(path or ""), config, original_execution(refiner)))
-        variants.append((label, str(path or ""), config, refiner))
+        if "worker" in args.paths:
+            named = label if args.paths == ["worker"] and args.device == "cpu" else f"{label}-worker-{args.device}"
+            variants.append((named, str(path or ""), config, refiner))
+        if "shared" in args.paths:
+            network = hosts.enter_context(host_process(config, args.device, args.refiner_batch))
+            named = f"{label}-shared-{args.device}-batch{args.refiner_batch}"
+            variants.append((named, str(path or ""), config, on_path(refiner, network)))
     if not args.no_warm_up:  # imports, torch's first kernels: not part of a task in a warm worker
         for _, _, config, refiner in variants:
             measure_task(object_specs(["builtin:capsule"])[0], config, refiner=refiner, gflops=gflops, floor_repeats=1)
@@ -992,6 +1080,7 @@ def measure(args: argparse.Namespace) -> Run:
                 f"load {loadavg()}",
                 flush=True,
             )
+    hosts.close()
     wall = time.perf_counter() - wall_before
     others = (machine_busy_seconds() - busy_before - (time.process_time() - own_before)) / wall if wall else 0.0
     labels = [label for label, _, _, _ in variants]

@@ -2,6 +2,7 @@
 
     python -m benchmarks.labels.version_labels  # poco_version 1 against 2, seeds 0 and 1
     python -m benchmarks.labels.version_labels --versions 1 2 --seeds 0 1 2 --workers 2
+    python -m benchmarks.labels.version_labels --versions 2 --variants "band6=band = 0.006" --seeds 0 1
 
 For each (version, seed) the dataset's own labels (`--planner oracle`) are played on the unseen
 watertight shared meshes (examples/watertight-meshes.txt), rotations 0 and 4 of 8, initial views 0, 8,
@@ -12,7 +13,9 @@ coverage, its mean size, and how many runs chose another view set).
 The spread to be within is the seed's: two seeds of one version refine with other input subsets and
 draw other cases, so their labels differ as much as two equally good datasets can. A new version
 whose labels differ from the old one's, at the same seed, by no more than that is as good by this
-measure (issue 24's rule for a refiner version that changes outputs).
+measure (issue 24's rule for a refiner version that changes outputs). ``--variants NAME=SETTINGS``
+judges a candidate that is not a version yet the same way: the first version's config plus the given
+settings (TOML lines, ``;`` between them), e.g. a narrower band.
 """
 
 from __future__ import annotations
@@ -45,10 +48,10 @@ class Run:
 Runs = dict[tuple[str, int, int], Run]
 
 
-def evaluate(version: int, seed: int, folder: Path, workers: int) -> Runs:
-    """The oracle's runs for one (version, seed), keyed by (object, rotation, initial view)."""
-    config = folder / f"v{version}-seed{seed}.toml"
-    config.write_text(f"rotations = 8\npoco_version = {version}\nseed = {seed}\n")
+def evaluate(settings: str, seed: int, folder: Path, workers: int, name: str) -> Runs:
+    """The oracle's runs for one (config settings, seed), keyed by (object, rotation, initial view)."""
+    config = folder / f"{name}-seed{seed}.toml"
+    config.write_text(f"rotations = 8\n{settings}\nseed = {seed}\n")
     command = [
         "datagen", "evaluate", "--objects", str(OBJECTS), "--config", str(config), "--planner", "oracle",
         "--rotations", "0,4", "--initial-views", "0,8,16,24", "--workers", str(workers), "--json",
@@ -104,13 +107,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--versions", nargs="+", type=int, default=[1, 2], help="poco_version values (default 1 2)")
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1], help="seeds (default 0 1)")
     parser.add_argument("--workers", type=int, default=1, help="objects evaluated side by side (default 1)")
+    parser.add_argument(
+        "--variants",
+        nargs="*",
+        default=[],
+        help="NAME=SETTINGS: the first version's config plus these TOML lines (';' between them)",
+    )
     args = parser.parse_args(argv)
+    candidates = {f"version {v}": (f"v{v}", f"poco_version = {v}") for v in args.versions}
+    for variant in args.variants:
+        name, _, settings = variant.partition("=")
+        if not name or not settings:
+            parser.error(f"--variants {variant!r}: give NAME=SETTINGS")
+        candidates[name] = (name, f"poco_version = {args.versions[0]}\n" + settings.replace(";", "\n"))
     results: dict[str, Runs] = {}
     with tempfile.TemporaryDirectory() as folder:
-        for seed, version in itertools.product(args.seeds, args.versions):
-            label = f"version {version}, seed {seed}"
-            results[label] = evaluate(version, seed, Path(folder), args.workers)
-            print(f"{label}: {len(results[label])} runs", flush=True)
+        for seed, (label, (name, settings)) in itertools.product(args.seeds, candidates.items()):
+            labelled = f"{label}, seed {seed}"
+            results[labelled] = evaluate(settings, seed, Path(folder), args.workers, name)
+            print(f"{labelled}: {len(results[labelled])} runs", flush=True)
     print("\n".join(report(results)))
     return 0
 

@@ -108,6 +108,7 @@ def evaluate(
         if tau is not None and not 0 < tau <= 1:
             raise InvalidArgument(f"--tau {tau}: give a share of the surface in (0, 1]")
         chosen_views = parse_selection(initial_views, resolved.num_views, "--initial-views")
+        chosen_rotations = parse_selection(rotations, resolved.rotations, "--rotations")  # before any work
         fixed = None
         if fixed_from is None:
             check_planners(planner, PlannerContext(resolved))  # a fixed planner: one line naming --fixed-from
@@ -122,7 +123,7 @@ def evaluate(
         spec = EvaluationSpec(
             planners=tuple(planner),
             refiners=tuple(refiner or [resolved.refiner]),
-            rotations=parse_selection(rotations, resolved.rotations, "--rotations"),
+            rotations=chosen_rotations,
             initial_views=chosen_views,
             budget=Budget(views=budget_views, metres=budget_moves),
             pictures=png,

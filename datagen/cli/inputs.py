@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -25,6 +26,7 @@ from datagen.pipeline.thread_limits import single_threaded_blas
 
 if TYPE_CHECKING:
     from datagen.pipeline.objects.spec import ObjectSpec
+    from schemas.config import GenerationConfig
 
 
 def config_show(config: ConfigOption = None) -> None:
@@ -58,6 +60,7 @@ def objects_show(
         resolved = load_config(config)
         listing = read_objects_file(objects)
         rows: list[list[Cell]] = []
+        warnings: list[str] = []
         failures = 0
         for entry in listing.entries:
             if isinstance(entry, ObjectLineError):
@@ -70,6 +73,9 @@ def objects_show(
                 failures += 1
                 rows.append([str(entry.line), entry.name, Text(str(exc), style="red"), "", "", "", "", ""])
                 continue
+            warned = prepared.flat_warning()
+            if warned:
+                warnings.append(warned)
             rows.append(
                 [
                     str(entry.line),
@@ -83,6 +89,8 @@ def objects_show(
                 ]
             )
         print_rows(["line", "name", "object id", "faces", "watertight", "units", "scale", "size m"], rows)
+        for warning in warnings:
+            error_console.print(Text("warning: ", style="yellow") + Text(warning), highlight=False, soft_wrap=True)
         _print_variants(listing.objects)
         console.print(f"{len(listing.entries) - failures} objects ready, {failures} with errors")
         if failures:
@@ -132,13 +140,18 @@ def objects_scan(
     out: Annotated[
         Path | None, typer.Option("--out", "-o", help="Objects file to write (paths relative to it); else stdout.")
     ] = None,
+    check: Annotated[
+        bool, typer.Option("--check", help="Also load every mesh; leave out and name those that will not load.")
+    ] = False,
+    config: ConfigOption = None,
 ) -> None:
     """Write an objects file listing every mesh under FOLDER, named by its path, with its category where
-    the layout has one; name each file left out and why. Reads only each file's header."""
+    the layout has one; name each file left out and why (byte-identical copies of a listed file too).
+    Reads only each file's header, unless --check."""
     from datagen.pipeline.objects.scan import SNIFFERS, scan_listing, scan_meshes
 
-    with user_errors():
-        result = scan_meshes(folder)
+    with user_errors(), single_threaded_blas():
+        result = scan_meshes(folder, _mesh_check(load_config(config)) if check else None)
         if not result.meshes:
             raise DatagenError(
                 f"{result.root}: holds no mesh files ({len(result.skipped)} skipped); "
@@ -167,6 +180,22 @@ def objects_scan(
             print_rows(["skipped", "why"], [[str(s.path), Text(s.reason, style="red")] for s in result.skipped], report)
 
 
+def _mesh_check(config: GenerationConfig) -> Callable[[Path], str | None]:
+    """``objects scan --check``: the one-line reason a mesh file cannot be made into an object."""
+    from datagen.pipeline.objects.prepare import prepare_object
+    from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec
+
+    def check(path: Path) -> str | None:
+        spec = ObjectSpec(source=str(path), name=path.stem, options=ObjectOptions(), object_id="")
+        try:
+            prepare_object(spec, config)
+        except DatagenError as error:
+            return str(error).removeprefix(f"{path}: ")
+        return None
+
+    return check
+
+
 def _write_text(path: Path, text: str) -> None:
     """Write through a hidden temporary sibling and rename, creating the folder; `OutputError` on failure."""
     if path.is_dir():
@@ -190,8 +219,8 @@ def scan(
 ) -> None:
     """Prepare, sample P_gt and image every task (object x rotation) from every view.
 
-    The most complete end-to-end run until ``datagen submit`` exists: it exercises steps 0-3 of
-    the pipeline on real objects and reports what each view sees.
+    Steps 0-3 of the pipeline alone (no refinement, labels or dataset): a quick look at what each
+    view of each object sees before a `datagen submit`.
     """
     from datagen.pipeline.objects.objects_file import read_objects_file
     from datagen.pipeline.objects.prepare import prepare_object

@@ -113,9 +113,11 @@ def _report(job: Job) -> None:
     colour = "green" if job.state == DONE else "red"
     console.print(Text.assemble("job ", (job.job_id, "bold"), " ", (job.state, colour)), soft_wrap=True)
     if summary:
+        refused = summary.get("refused_lines", 0)
+        lines = f"; {refused} objects-file line{'s' if refused != 1 else ''} refused" if refused else ""
         console.print(
             f"{summary.get('done', 0)}/{summary.get('tasks', 0)} tasks done, {summary.get('samples', 0)} samples, "
-            f"{summary.get('failed', 0)} failed",
+            f"{summary.get('failed', 0)} failed{lines}",
             highlight=False,
             soft_wrap=True,
         )
@@ -133,6 +135,8 @@ def _report(job: Job) -> None:
         if "step_seconds" in summary:
             for line in step_lines(totals_from_json(summary["step_seconds"])):
                 say(line)
+        for line in summary.get("warnings", []):
+            error_console.print(Text("warning: ", style="yellow") + Text(str(line)), highlight=False, soft_wrap=True)
         for line in [*summary.get("line_errors", []), *summary.get("failures", [])]:
             error_console.print(Text("error: ", style="red") + Text(str(line)), highlight=False, soft_wrap=True)
     console.print(Text("dataset: ") + Text(job.out, style="bold"), highlight=False, soft_wrap=True)

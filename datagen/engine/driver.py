@@ -85,6 +85,8 @@ class JobProgress:
     messages: list[str] = field(default_factory=list)
     waiting: str = ""
     """What the driver waits for when other drivers hold the job's remaining tasks ('' otherwise)."""
+    warnings: set[str] = field(default_factory=set)
+    """What the tasks this driver ran said of their objects (a flat mesh), once each."""
 
 
 ProgressCallback = Callable[[JobProgress], None]
@@ -332,7 +334,8 @@ def run_job(
                 last_renew = time.monotonic()
         counts = ledger.task_counts(job_id)
         if not cancelled and not counts.get(PENDING) and not counts.get(RUNNING):
-            ledger.finish_job(job_id, _finish(ledger, job_id, spec, location), other_failures=len(spec.line_errors))
+            summary = _finish(ledger, job_id, spec, location, state.warnings)
+            ledger.finish_job(job_id, summary, other_failures=len(spec.line_errors))
         state.waiting = ""
         _count(ledger, job_id, state)
         if progress:
@@ -369,8 +372,11 @@ def _count(ledger: Ledger, job_id: str, state: JobProgress) -> None:
     state.samples = ledger.done_samples(job_id)
 
 
-def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> dict[str, Any]:
-    """Finalise the index and clean up leftovers; the job's summary, counted from the dataset."""
+def _finish(
+    ledger: Ledger, job_id: str, spec: JobSpec, location: Location, warnings: set[str] | None = None
+) -> dict[str, Any]:
+    """Finalise the index and clean up leftovers; the job's summary, counted from the dataset, with
+    the ``warnings`` this driver's tasks gave."""
     with _store_errors(location.url):
         finalised = finalise(location)  # reads the records of the tasks its manifest does not name yet
         commits = [record_of(row) for row in read_tasks(location, finalised.manifest).to_pylist()]
@@ -388,9 +394,11 @@ def _finish(ledger: Ledger, job_id: str, spec: JobSpec, location: Location) -> d
         {
             "tasks": sum(counts.values()),
             "done": counts.get(DONE, 0),
-            "failed": counts.get(FAILED, 0) + len(spec.line_errors),
+            "failed": counts.get(FAILED, 0),
+            "refused_lines": len(spec.line_errors),
             "samples": finalised.num_samples,
             "line_errors": spec.line_errors,
+            "warnings": sorted(warnings or ()),
             "failures": [f"{task.object.origin}: {task.task_id}: {error}" for task, error in failed],
             "swept": len(swept),
             "swept_examples": swept[:5],
@@ -462,6 +470,7 @@ def _record(
             state.messages.append(f"{task_id}: {message}")
             _write_failure(location, task, message, state)
         return
+    state.warnings.update(outcome.warnings)
     if outcome.ok:
         ledger.complete(job_id, task_id, attempt_id, outcome.samples, placement)
     elif ledger.fail(job_id, task_id, attempt_id, outcome.message):

@@ -57,6 +57,8 @@ class TaskOutcome:
     reused: bool = False
     """True when the task was already committed and nothing was computed."""
     seconds: float = 0.0
+    warnings: tuple[str, ...] = ()
+    """What the job's report should say of the task's object (a flat mesh), one line each."""
 
 
 class TaskBody(Protocol):
@@ -153,7 +155,15 @@ def execute_task(
         return write_task(location, payload, f"{attempt_id}-{uuid.uuid4().hex[:8]}")
 
     record = _store_retried(write, remote)
-    return TaskOutcome(spec.task_id, True, record.num_samples, record.attempt_id, seconds=time.perf_counter() - started)
+    warned = prepared.flat_warning()
+    return TaskOutcome(
+        spec.task_id,
+        True,
+        record.num_samples,
+        record.attempt_id,
+        seconds=time.perf_counter() - started,
+        warnings=(warned,) if warned else (),
+    )
 
 
 def _store_retried(action: Callable[[], T], remote: bool = True) -> T:

@@ -1,5 +1,6 @@
 """benchmarks/generation/gpu_recipe.py without a GPU: both jobs on the CPU (one small built-in, a small
-config, one rotation) hold the same samples and every label agrees; the agreement counts made-up
+config, one rotation; the device job through a shared refiner host) hold the same samples and every
+label agrees; the agreement counts made-up
 differences; a budget stops a job and what it committed is still read; it refuses to write over a
 result or into a folder it did not make, and asking for CUDA where there is none is one line."""
 
@@ -38,13 +39,16 @@ def test_both_jobs_on_the_cpu_agree_on_every_label(
     out = tmp_path / "report.md"
     work = tmp_path / "work"
     argv = ["--device", "cpu", "--work", str(work), "--workers", "2", "--objects-count", "2", *inputs]
+    argv += ["--shared-refiner"]  # the device job through one shared host: the same labels
     assert gpu_recipe.main([*argv, "--out", str(out)]) == 0
     text = out.read_text()
     assert "2 lines of" in text and "(a subset: time was short)" in text
+    assert "one shared host, 1 jobs per encoder call" in text
     device = gpu_recipe.dataset_job("device", work / "device", 1.0, False)
     cpu = gpu_recipe.dataset_job("cpu", work / "cpu", 1.0, False)
     assert device.tasks == cpu.tasks == 2 and device.samples == cpu.samples > 0
     assert device.task_cpu > 0 and "refine_views" in device.step_cpu
+    assert device.step_cpu["refiner_host"] > 0 and "refiner_host" not in cpu.step_cpu
     found = gpu_recipe.agreement(work / "device", work / "cpu")
     assert found.common == found.same_label == found.same_view_state == found.same_points == cpu.samples
     assert found.only_device == found.only_cpu == 0

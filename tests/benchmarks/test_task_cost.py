@@ -148,6 +148,29 @@ def test_one_task_measured_with_a_floor_for_each_step(task_cost: ModuleType, tmp
     assert "## Comparison" in report and "| write |" in report
 
 
+@pytest.mark.slow
+def test_the_shared_path_moves_the_network_to_the_host(task_cost: ModuleType) -> None:
+    """``--paths shared``: the same task through a host in a second process: the same samples, the
+    network's CPU in ``refiner_host`` instead of the refine steps, the task's wait in ``refiner_queue``."""
+    from datagen.pipeline.refine import make_refiner
+
+    config = GenerationConfig()
+    (spec,) = task_cost.object_specs(["builtin:capsule"])
+    refiner = make_refiner(config)
+    worker = task_cost.measure_task(spec, config, refiner=refiner, gflops=100.0, floor_repeats=1)
+    with task_cost.host_process(config, "cpu", 1) as network:
+        shared = task_cost.measure_task(
+            spec, config, refiner=task_cost.on_path(refiner, network), gflops=100.0, floor_repeats=1
+        )
+    assert shared.samples == worker.samples > 0
+    assert shared.cpu["refiner_host"] > 0 and "refiner_queue" in shared.wall
+    own = shared.cpu["refine_views"] + shared.cpu["refine_cases"]
+    assert own < worker.cpu["refine_views"] + worker.cpu["refine_cases"]  # the network ran elsewhere
+    rows = task_cost.step_rows([shared])
+    assert [r.step for r in rows][-2:] == ["refiner_host", "refiner_queue"]
+    assert next(r for r in rows if r.step == "refiner_host").floor is None
+
+
 def test_original_execution_is_the_same_poco_refiner_unoptimised(task_cost: ModuleType) -> None:
     from datagen.pipeline.refine import make_refiner
 

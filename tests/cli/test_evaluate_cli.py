@@ -101,6 +101,8 @@ def test_budgets_cut_the_runs(runner: CliRunner, objects: Path, config: Path) ->
         (("-p", "all", "--budget-views", "0"), "--budget-views 0"),
         (("-p", "all", "--budget-moves", "-1"), "--budget-moves -1.0"),
         (("-p", "all", "--rotations", "9"), "--rotations '9'"),
+        # refused before any work: here before the --fixed-from dataset would be read (issue 42)
+        (("-p", "fixed:4", "--fixed-from", "/no/such/dataset", "--rotations", "0,4"), "--rotations '0,4'"),
         (("-p", "all", "--initial-views", "32"), "--initial-views '32'"),
         (("-p", "all", "--refiner", "magic"), "unknown refiner 'magic'"),
     ],

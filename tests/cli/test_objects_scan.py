@@ -200,3 +200,55 @@ def test_objects_show_piped_keeps_an_error_on_one_line(tmp_path: Path, monkeypat
         f"1\t-\tmesh file not found: {missing}; fix the path (relative paths start at the objects file)\t\t\t\t\t"
     )
     assert lines[2] == "0 objects ready, 1 with errors"
+
+
+FLAT_SQUARE = b"v 0 0 0\nv 0.1 0 0\nv 0.1 0.1 0\nv 0 0.1 0\nf 1 2 3\nf 1 3 4\n"
+BROKEN_OFF = b"OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 x\n3 0 1 2\n3 0 2 3\n"
+
+
+@pytest.fixture
+def odd_folder(tmp_path: Path) -> Path:
+    """A mesh, its byte-identical copy, an OFF that passes the header check but will not load, a flat sheet."""
+    folder = tmp_path / "odd"
+    folder.mkdir()
+    box = trimesh.creation.box(extents=(0.1, 0.08, 0.06)).export(file_type="obj").encode()
+    (folder / "a.obj").write_bytes(box)
+    (folder / "b.obj").write_bytes(box)
+    (folder / "broken.off").write_bytes(BROKEN_OFF)
+    (folder / "flat.obj").write_bytes(FLAT_SQUARE)
+    return folder
+
+
+def test_scan_leaves_out_byte_identical_copies(odd_folder: Path) -> None:
+    result = CliRunner().invoke(app, ["objects", "scan", str(odd_folder)])
+    assert result.exit_code == 0, result.output
+    listed = [line.split()[0] for line in result.stdout.splitlines() if not line.startswith("#")]
+    assert listed == [str(odd_folder / name) for name in ("a.obj", "broken.off", "flat.obj")]
+    assert skipped_rows(result.stderr) == {str(odd_folder / "b.obj"): "the same bytes as a.obj, which is listed"}
+
+
+def test_scan_check_loads_each_mesh_and_names_the_broken_one_in_a_plain_line(odd_folder: Path) -> None:
+    result = CliRunner().invoke(app, ["objects", "scan", str(odd_folder), "--check"])
+    assert result.exit_code == 0, result.output
+    listed = [line.split()[0] for line in result.stdout.splitlines() if not line.startswith("#")]
+    assert listed == [str(odd_folder / name) for name in ("a.obj", "flat.obj")]
+    skipped = skipped_rows(result.stderr)
+    assert sorted(skipped) == [str(odd_folder / "b.obj"), str(odd_folder / "broken.off")]
+    reason = skipped[str(odd_folder / "broken.off")]
+    assert reason.startswith("not a readable mesh (") and "Traceback" not in result.stderr
+    assert reason.endswith("give an OBJ, PLY, STL, OFF or GLB file with faces")
+
+
+def test_objects_show_warns_of_a_flat_mesh(odd_folder: Path, tmp_path: Path) -> None:
+    listing = tmp_path / "objects.txt"
+    listing.write_text(f"{odd_folder / 'a.obj'}\n{odd_folder / 'flat.obj'}\n")
+    result = CliRunner().invoke(app, ["objects", "show", str(listing)])
+    assert result.exit_code == 0, result.output
+    (warning,) = [line for line in result.stderr.splitlines() if line.startswith("warning:")]
+    assert warning.startswith(f"warning: {listing}:2: flat: flat (thinnest extent 0.00% of its size)")
+    assert "labels are degenerate" in warning
+    config = GenerationConfig()
+    specs = read_objects_file(listing).objects
+    box, sheet = (prepare_object(spec, config) for spec in specs)
+    assert box.thinness == pytest.approx(0.06 / 0.1 * 0.8, rel=0.5) and box.flat_warning() is None
+    assert sheet.thinness == 0.0

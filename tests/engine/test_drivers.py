@@ -192,11 +192,13 @@ def test_report_puts_each_error_on_stderr_in_one_unwrapped_line(
     monkeypatch.setattr(common.error_console, "_width", 80)
     failure = "/a/rather/long/path/to/an/objects/file/objects.txt:12: t-0001: " + "mesh is not watertight " * 5
     line_error = "/a/rather/long/path/to/an/objects/file/objects.txt:3: missing.obj: mesh file not found here"
-    summary = {"tasks": 2, "done": 1, "failed": 2, "samples": 7, "failures": [failure], "line_errors": [line_error]}
+    summary = {"tasks": 2, "done": 1, "failed": 1, "refused_lines": 1, "samples": 7}
+    summary |= {"failures": [failure], "line_errors": [line_error]}
     job = Job("j-1", "failed", {}, "/a/rather/long/path/to/the/dataset/" + "x" * 60, 0.0, 0.0, None, summary)
     jobs_cli._report(job)
     captured = capsys.readouterr()
     assert captured.err.splitlines() == [f"error: {line_error}", f"error: {failure}"]
     assert "error:" not in captured.out
-    assert "1/2 tasks done, 7 samples, 2 failed" in captured.out
+    # the objects file's refused lines are not counted as tasks (issue 42: "1/2 tasks done ... 3 failed")
+    assert "1/2 tasks done, 7 samples, 1 failed; 1 objects-file line refused" in captured.out
     assert f"dataset: {job.out}" in captured.out.splitlines()

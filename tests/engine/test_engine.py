@@ -283,7 +283,8 @@ def test_bad_input_good_objects_written_failures_recorded(bad_input_run) -> None
     by_origin = {f.origin: f.message for f in failures}
     assert "not found" in by_origin[f"{objects}:{line_of['missing']}"]
     assert "bad.obj" in by_origin[f"{objects}:{line_of['bad']}"]
-    assert job.summary is not None and job.summary["failed"] == 3 and job.summary["done"] == 4
+    assert job.summary is not None and job.summary["done"] == 4
+    assert (job.summary["failed"], job.summary["refused_lines"]) == (2, 1)  # tasks apart from lines
 
 
 def test_bad_input_cli_names_the_missing_file_by_line(bad_input_run) -> None:
@@ -349,3 +350,15 @@ def test_refiner_gpus_without_a_gpu_is_one_clear_error(inputs: Path, tmp_path: P
         api.submit(inputs / "builtins.txt", inputs / "one.toml", settings)
     job = only_job(tmp_path / "home")
     assert job is not None and job.state == FAILED and "no GPU" in job.summary["error"]
+
+
+def test_a_flat_mesh_is_made_and_named_once_in_the_jobs_warnings(inputs: Path, tmp_path: Path) -> None:
+    """A zero-thickness sheet is a valid mesh, but every view sees nearly all of it: the job makes it
+    and its summary names it once (not once per rotation), by objects-file line (issue 42)."""
+    sheet = tmp_path / "sheet.obj"
+    sheet.write_text("v 0 0 0\nv 0.1 0 0\nv 0.1 0.1 0\nv 0 0.1 0\nf 1 2 3\nf 1 3 4\n")
+    objects = write_objects(tmp_path / "objects.txt", [str(sheet), "builtin:capsule"])
+    job = api.submit(objects, inputs / "fast.toml", settings_for(tmp_path / "home"))
+    assert job.state == DONE and job.summary["done"] == 4
+    (warning,) = job.summary["warnings"]
+    assert warning.startswith(f"{objects}:2: sheet: flat (thinnest extent 0.00% of its size)")  # after a comment

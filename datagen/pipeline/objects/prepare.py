@@ -24,6 +24,9 @@ from datagen.shapes import builtins
 from schemas.config import GenerationConfig
 
 MIN_AREA_M2 = 1e-12
+FLAT_RATIO = 0.01
+"""A mesh whose thinnest principal extent is below this share of its largest is flat: every view sees
+nearly all of it (from one side or the other), so its labels are degenerate."""
 
 
 @dataclass(frozen=True)
@@ -46,6 +49,26 @@ class PreparedObject:
     def bounding_radius(self) -> float:
         """Radius of the origin-centred sphere holding the mesh; yaw about z keeps it."""
         return float(np.sqrt((self.vertices**2).sum(axis=1).max()))
+
+    @property
+    def thinness(self) -> float:
+        """The mesh's thinnest extent over its largest, along its principal axes (0 for a plane)."""
+        centred = self.vertices - self.vertices.mean(axis=0)
+        axes = np.linalg.svd(centred, full_matrices=False)[2]
+        extents = np.ptp(centred @ axes.T, axis=0)
+        return float(extents.min() / extents.max()) if extents.max() > 0 else 0.0
+
+    def flat_warning(self) -> str | None:
+        """One line naming a flat or degenerate mesh (`FLAT_RATIO`), or None: such a mesh is made, but
+        a user should know that its labels say little."""
+        thinness = self.thinness
+        if thinness >= FLAT_RATIO:
+            return None
+        where = f"{self.spec.origin}: " if self.spec.origin else ""
+        return (
+            f"{where}{self.spec.name}: flat (thinnest extent {thinness:.2%} of its size): every view sees nearly "
+            "all of it, so its labels are degenerate; leave it out unless a sheet is meant"
+        )
 
     def task_vertices(self, rotation: int, rotations: int) -> npt.NDArray[np.float64]:
         """Vertices in the frame of task rotation r: yawed by r * 360/rotations degrees about z."""

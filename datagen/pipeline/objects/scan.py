@@ -5,6 +5,11 @@ reads at most the first kilobytes of each file: enough to tell a mesh by its hea
 truncated or mislabelled file. Each listed mesh gets a name from its path (unique, the same on every
 run) and, where the layout has one, a category: ShapeNet's synset id or ModelNet's class folder.
 Whatever is not listed is kept with the reason, so the caller can name every skipped file.
+
+Files with the same bytes would make the same samples twice: the first by path is listed and the
+others left out, named (only files that share a size are read whole and hashed). With a ``check``
+(``objects scan --check``) each mesh is also loaded, and one that will not load is left out with
+the loader's one line.
 """
 
 from __future__ import annotations
@@ -130,9 +135,14 @@ SNIFFERS: dict[str, Callable[[bytes, Path], str | None]] = {
 check that returns why a file is not such a mesh, or None."""
 
 
-def scan_meshes(root: str | Path) -> ScanResult:
+MeshCheck = Callable[[Path], "str | None"]
+"""Loads a mesh file; the reason it cannot be used (one line), or None."""
+
+
+def scan_meshes(root: str | Path, check: MeshCheck | None = None) -> ScanResult:
     """Every mesh file under ``root`` (sorted by relative path) with a name and category; what was not
-    listed, with the reason. Raises `ObjectsFileError` when ``root`` is not a readable folder."""
+    listed, with the reason: unreadable headers, byte-identical copies of a listed file, and with
+    ``check`` the meshes it refuses. Raises `ObjectsFileError` when ``root`` is not a readable folder."""
     root = Path(root).absolute()
     if not root.is_dir():
         what = "does not exist" if not root.exists() else "is not a folder"
@@ -156,6 +166,14 @@ def scan_meshes(root: str | Path) -> ScanResult:
             skipped.append(SkippedFile(path, reason))
             continue
         meshes.append((relative, _category(relative)))
+    copies = _byte_copies(root, [relative for relative, _ in meshes])
+    for relative, original in sorted(copies.items()):
+        skipped.append(SkippedFile(root / relative, f"the same bytes as {original.as_posix()}, which is listed"))
+    meshes = [(relative, category) for relative, category in meshes if relative not in copies]
+    if check is not None:
+        refused = {relative: check(root / relative) for relative, _ in meshes}
+        skipped += [SkippedFile(root / relative, reason) for relative, reason in refused.items() if reason]
+        meshes = [(relative, category) for relative, category in meshes if not refused[relative]]
     names = _unique_names([relative for relative, _ in meshes])
     listed = tuple(
         ScannedMesh(path=root / relative, name=name, category=category)
@@ -164,6 +182,42 @@ def scan_meshes(root: str | Path) -> ScanResult:
     return ScanResult(
         root=root, meshes=listed, skipped=tuple(sorted(skipped, key=lambda s: s.path)), companions=companions
     )
+
+
+def _byte_copies(root: Path, files: list[Path]) -> dict[Path, Path]:
+    """Each file whose bytes equal an earlier one's (in the given order) -> that earlier file. Only
+    files sharing a size are hashed, so a tree of distinct meshes is read no further than its headers."""
+    by_size: dict[int, list[Path]] = {}
+    for relative in files:
+        try:
+            by_size.setdefault((root / relative).stat().st_size, []).append(relative)
+        except OSError:
+            continue
+    copies: dict[Path, Path] = {}
+    for group in by_size.values():
+        if len(group) < 2:
+            continue
+        first: dict[str, Path] = {}
+        for relative in group:
+            digest = _sha256(root / relative)
+            if digest is None:
+                continue
+            if digest in first:
+                copies[relative] = first[digest]
+            else:
+                first[digest] = relative
+    return copies
+
+
+def _sha256(path: Path) -> str | None:
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+    except OSError:
+        return None
+    return digest.hexdigest()
 
 
 def _walk(root: Path) -> tuple[list[Path], list[SkippedFile]]:
