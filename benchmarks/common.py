@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TESTS = REPO_ROOT / "tests"
@@ -54,3 +55,25 @@ def interruptible_child() -> None:
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def add_report_options(parser: Any, default: Path | None = None, what: str = "the report (Markdown)") -> None:
+    """``--out`` (default ``default``, or none: printed only) and ``--replace``: a harness writes a new
+    file, and writes over an existing one (a committed result) only when told to (`check_report`)."""
+    shown = ""
+    if default is not None:
+        shown = f" (default {default.relative_to(REPO_ROOT) if default.is_relative_to(REPO_ROOT) else default})"
+    parser.add_argument("--out", type=Path, default=default, help=what + shown)
+    parser.add_argument("--replace", action="store_true", help="let --out write over an existing file")
+
+
+def check_report(parser: Any, out: Path | None, replace: bool) -> None:
+    """Refuse (as the parser's one-line error) an ``--out`` that exists unless ``--replace``."""
+    if out is not None and out.exists() and not replace:
+        parser.error(f"{out} exists; give another --out, or --replace to write over it")
+
+
+def check_new_folder(parser: Any, folder: Path, what: str = "--work") -> None:
+    """Refuse a folder that holds anything: a harness cleans up only what it made."""
+    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        parser.error(f"{what} {folder} is not a new or empty folder; give a new one (nothing is deleted)")

@@ -22,6 +22,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from schemas.errors import DatagenError
+from schemas.objectives import Objective, label_fields, objective_named
 
 MAX_VIEWS = 64
 """Cases are stored as one uint64 bit mask, so at most 64 candidate views."""
@@ -119,17 +120,6 @@ def stored_config(data: Any) -> Any:
     return data
 
 
-LabelObjective = Literal["cover", "max_coverage", "partial_cover"]
-LABEL_OBJECTIVES: tuple[str, ...] = ("cover", "max_coverage", "partial_cover")
-OBJECTIVE_FIELDS: dict[str, tuple[str, ...]] = {
-    "cover": (),
-    "max_coverage": ("label_budget",),
-    "partial_cover": ("label_tau",),
-}
-"""The label fields each objective reads; the others' never enter the hash (they change nothing)."""
-_DROPPED_UNLESS_USED = frozenset(name for names in OBJECTIVE_FIELDS.values() for name in names)
-
-
 class GenerationConfig(_Frozen):
     """Every setting that changes a sample (hashed into every sample and into ``dataset.json``)."""
 
@@ -181,9 +171,10 @@ class GenerationConfig(_Frozen):
     label_cover_cap: int = Field(DEFAULT_COVER_CAP, ge=1, le=1 << 20, strict=True)
     """Most minimum covers a sample lists beside its label; past it the count of minimum covers is
     a lower bound (the support, the views of any minimum cover, stays exact)."""
-    label_objective: LabelObjective = "cover"
-    """What a label is (docs/pipeline.md section 7.5): 'cover', the paper's (the fewest views covering
-    P_full's keys the input misses); 'max_coverage', the at most `label_budget` views that see the most
+    label_objective: str = "cover"
+    """What a label is (docs/pipeline.md section 7.5; a registered `schemas.objectives.Objective`): 'cover',
+    the paper's (the fewest views covering P_full's keys the input misses); 'max_coverage', the at most
+    `label_budget` views that see the most
     of what all views see; 'partial_cover', the fewest views that bring what is seen to `label_tau` of
     what all views see, seeing the most among those. The last two are judged on the visibility sets V_i,
     the coverage `datagen evaluate` reports."""
@@ -198,6 +189,12 @@ class GenerationConfig(_Frozen):
         for component in value:
             if not (0.0 <= component < 1.0) or not math.isfinite(component):
                 raise ValueError(f"each component must be in [0, 1) voxels, got {component}")
+        return value
+
+    @field_validator("label_objective")
+    @classmethod
+    def _registered_objective(cls, value: str) -> str:
+        objective_named(value)
         return value
 
     @field_validator("size_range")
@@ -216,7 +213,7 @@ class GenerationConfig(_Frozen):
 
     @model_validator(mode="after")
     def _tie_break_of_covers(self) -> GenerationConfig:
-        if self.label_objective != "cover" and self.label_tie_break != "index":
+        if not self.objective.ranks_ties and self.label_tie_break != "index":
             raise ValueError(
                 f"label_tie_break = {self.label_tie_break!r} ranks views by the cover problem's U; the "
                 f"{self.label_objective!r} objective breaks ties by view index: leave label_tie_break = 'index'"
@@ -227,10 +224,15 @@ class GenerationConfig(_Frozen):
     def num_views(self) -> int:
         return self.view_space.count
 
+    @property
+    def objective(self) -> Objective:
+        """The label objective's registered `Objective`."""
+        return objective_named(self.label_objective)
+
     def objective_text(self) -> str:
         """The label objective with the parameter it reads: ``cover``, ``max_coverage (budget 3)``, ..."""
-        names = {"label_budget": "budget", "label_tau": "tau"}
-        used = [f"{names[name]} {getattr(self, name)}" for name in OBJECTIVE_FIELDS[self.label_objective]]
+        objective = self.objective
+        used = [f"{objective.text_names.get(name, name)} {getattr(self, name)}" for name in objective.fields]
         return self.label_objective + (f" ({', '.join(used)})" if used else "")
 
     def tau_keys(self, reference: int) -> int:
@@ -270,7 +272,7 @@ class GenerationConfig(_Frozen):
                 del data[name]  # a dataset made before the field existed keeps its hash
         if self.refiner != "poco":
             data.pop("poco_version", None)  # only the poco refiner reads it: other datasets keep their hash
-        for name in _DROPPED_UNLESS_USED - set(OBJECTIVE_FIELDS[self.label_objective]):
+        for name in label_fields() - set(self.objective.fields):
             del data[name]  # a field the objective does not read changes no sample
         if self.view_space.is_file:
             data["view_space"]["source"] = "sha256:" + file_sha256(Path(self.view_space.source))

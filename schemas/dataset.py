@@ -9,6 +9,8 @@ from pydantic import BaseModel, ConfigDict, field_validator
 from schemas.config import GenerationConfig, stored_config
 
 DATASET_FILE = "dataset.json"
+CARD_FILE = "README.md"
+"""The dataset card (`datagen shards card`) at a dataset's root; `shards export` copies it."""
 
 
 class DatasetInfo(BaseModel):

@@ -48,7 +48,7 @@ Version 4 stores each sample's refined cloud (``points_keys``) in a seeded rando
 (`point_order`: a permutation of the sorted set from the stream of the dataset's seed, the task and
 the case), in inner chunks of a few thousand rows, so that any run of consecutive stored points is a
 uniform random subset of the cloud and a reader wanting N of them decodes one or two chunks instead
-of the whole cloud (`storage.samples.cloud_positions`).
+of the whole cloud (`storage.resampling.cloud_positions`).
 
 Every other key set of a sample or view, and a version-4 cloud once put back in `point_order`, is
 sorted lexicographically (x, y, z) and unique. Rows are ordered by (case size, case mask). Group

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import google_crc32c
 import numcodecs.blosc
@@ -25,7 +25,16 @@ import zarr.codecs
 
 if TYPE_CHECKING:
     from storage.group_files import GroupFiles
-    from storage.shards import ShardReader
+
+
+class ArrayReader(Protocol):
+    """What the codec reads through (a `storage.shards.ShardReader`): the group's member files, and
+    zarr's own read of an array for every layout and damage the fast path leaves to it."""
+
+    files: GroupFiles
+
+    def array(self, name: str) -> npt.NDArray[Any]: ...
+
 
 COMPRESSORS = (
     zarr.codecs.BloscCodec(cname="zstd", clevel=3, shuffle=zarr.codecs.BloscShuffle.shuffle),
@@ -40,7 +49,7 @@ NO_CHUNK = 2**64 - 1
 """A shard index entry of an inner chunk that was never written."""
 
 
-def whole_array(reader: ShardReader, name: str) -> npt.NDArray[Any]:
+def whole_array(reader: ArrayReader, name: str) -> npt.NDArray[Any]:
     """Array ``name`` of a verified shard, whole: decoded here when it has the layout `storage.shards`
     writes (little-endian bytes, Blosc, CRC32C; one chunk, or one shard file of inner chunks with its
     index at the end), every chunk's and the index's CRC32C checked; anything else, and any failure
@@ -136,7 +145,7 @@ class RowTaker:
     Any other layout, and any failure, reads the whole array (`whole_array`, and zarr through
     `ShardReader.array` for damage, which raises the reader's own `StorageError`)."""
 
-    def __init__(self, reader: ShardReader, name: str) -> None:
+    def __init__(self, reader: ArrayReader, name: str) -> None:
         self._reader, self._name = reader, name
         try:
             self._chunked = _open_row_chunks(reader.files, name)

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from storage.bits import mask_bits
+
 GainArray = npt.NDArray[np.uint32]
 
 
@@ -41,3 +43,19 @@ class MaskCounts:
         """(n,) keys each view would add to case ``case`` (0 for the case's own views)."""
         unseen = (self.masks & np.uint64(case)) == 0
         return (self.counts[unseen] @ self.bits[unseen]).astype(np.uint32)
+
+
+def best_views(
+    gains: npt.ArrayLike, cases: npt.ArrayLike, width: int
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """(best view, views sharing its gain) of each row of ``gains`` (S, width) for the ``cases`` (S,)
+    masks: the largest gain outside the case, lowest index first (the authors' first-maximum loop);
+    (-1, 0) for a case of every view. The generator and every reader pick it here."""
+    values = np.asarray(gains, dtype=np.int64).reshape(-1, width)
+    outside = ~mask_bits(np.asarray(cases, dtype=np.uint64).reshape(-1), width)
+    candidates = np.where(outside, values, -1)
+    best = np.argmax(candidates, axis=1)
+    top = np.take_along_axis(candidates, best[:, None], axis=1)
+    ties = ((candidates == top) & outside).sum(axis=1)
+    none = ~outside.any(axis=1)
+    return np.where(none, -1, best).astype(np.int64), np.where(none, 0, ties).astype(np.int64)

@@ -9,12 +9,13 @@ with offsets. `MemoryDataset.batch` then builds fixed-size point clouds by a num
 the occupancy grids (``fields=("grid",)``), it keeps each task's per-view ray cells once (`CaseGrids`,
 a few hundred bytes a sample) and builds a batch's grids when asked, instead of 128 KB per sample.
 
-Every conversion follows the sample contract of `storage.samples`: a sample held at position ``p``
-is resampled from stream ``(seed, epoch, rows[p])``, its row in the dataset it was loaded from, so a
-side loaded alone (``rows=`` or ``objects=``) gives exactly the tensors it gives in a whole load, and
-a whole load exactly what `storage.torch.OSVPDataset` gives for the same (seed, epoch, index).
+Every conversion follows the sample contract (`storage.resampling`, `storage.bits`, `storage.batch`):
+a sample held at position ``p`` is resampled from stream ``(seed, epoch, rows[p])``, its row in the
+dataset it was loaded from, so a side loaded alone (``rows=`` or ``objects=``) gives exactly the
+tensors it gives in a whole load, and a whole load exactly what `storage.torch.OSVPDataset` gives
+for the same (seed, epoch, index).
 
-A version-4 dataset's refined clouds are drawn as windows of their stored order (`storage.samples`);
+A version-4 dataset's refined clouds are drawn as windows of their stored order (`storage.resampling`);
 memory still holds each whole cloud, since every epoch draws another window of it.
 
 Depends on numpy and `storage` only: no torch here (osvp wraps the arrays as tensors).
@@ -41,19 +42,12 @@ from schemas.shard import (
     keys_array,
     offsets_array,
 )
+from storage.batch import SampleBatch, Source, check_source
+from storage.bits import bit_rows
 from storage.occupancy import GRID_SIDE, case_grid
 from storage.reader import Dataset, open_dataset
-from storage.samples import (
-    SampleBatch,
-    ShardRows,
-    Source,
-    bit_rows,
-    check_source,
-    fields_for,
-    gather_clouds,
-    key_centres,
-    windowed_cloud,
-)
+from storage.resampling import gather_clouds, key_centres, windowed_cloud
+from storage.sample_fields import ShardRows, fields_for
 
 Progress = Callable[[int, int], None]
 """Called with (samples read, samples to read) after each shard."""
@@ -143,7 +137,7 @@ class MemoryDataset:
     covers: PackedCovers | None = None
     """None for a version-1 dataset, or when the load was asked to leave them out."""
     fields: dict[str, npt.NDArray[Any]] = field(default_factory=dict)
-    """(S, ...) values of every registered `storage.samples.SampleField` the dataset has, by name
+    """(S, ...) values of every registered `storage.sample_fields.SampleField` the dataset has, by name
     (the grid excepted: `grids`)."""
     grids: CaseGrids | None = None
     """The occupancy grids when the load asked for them; a batch then carries ``grid``."""
@@ -157,7 +151,7 @@ class MemoryDataset:
 
     def resampled_keys(self, positions: Rows, num_points: int, seed: int, epoch: int) -> npt.NDArray[np.int16]:
         """(B, num_points, 3) keys of the samples at ``positions``, each drawn from its own stream
-        (seed, epoch, dataset row) by `storage.samples.gather_clouds` (a window of a version-4 refined
+        (seed, epoch, dataset row) by `storage.resampling.gather_clouds` (a window of a version-4 refined
         cloud's stored order); an empty cloud stays at the zero key."""
         index = np.asarray(positions, dtype=np.int64).reshape(-1)
         starts = self.offsets[index]

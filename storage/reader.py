@@ -35,8 +35,11 @@ from schemas.shard import (
     keys_array,
     offsets_array,
 )
+from storage.batch import KeyArray
+from storage.bits import mask_bits
 from storage.covers import cover_marginals, universe_rows
 from storage.dataset_info import read_info
+from storage.gains import best_views
 from storage.index import INDEX_COVERAGE_FILE as INDEX_COVERAGE_FILE
 from storage.index import INDEX_FILE as INDEX_FILE
 from storage.index import finalise as finalise
@@ -44,18 +47,10 @@ from storage.index import open_index
 from storage.location import Location, StorageError, open_location
 from storage.manifest import record_of
 from storage.occupancy import case_grid
+from storage.resampling import gather_clouds, key_centres, resample_keys, windowed_cloud
 from storage.sample_index import SampleIndex, from_table, numpy_of
-from storage.samples import (
-    KeyArray,
-    best_views,
-    gather_clouds,
-    key_centres,
-    mask_bits,
-    resample_keys,
-    split_by_object,
-    windowed_cloud,
-)
 from storage.shards import ShardReader
+from storage.splits import split_by_object
 from storage.store_errors import check_store, is_store_failure, storage_failure
 from storage.writer import committed_tasks, read_failures
 
@@ -196,7 +191,7 @@ class Dataset:
 
     def resampled_keys(self, i: int, num_points: int, seed: int, epoch: int, source: str = "points") -> KeyArray:
         """(num_points, 3) keys of sample i drawn from stream (seed, epoch, i) by the sample contract
-        (`storage.samples.gather_clouds`): a version-4 refined cloud decodes only its window's chunks
+        (`storage.resampling.gather_clouds`): a version-4 refined cloud decodes only its window's chunks
         (`ShardReader.rows`, cached per shard), any other cloud is read whole."""
         shard = self.shard(self.shard_of(i))
         row = self.row_of(i)
@@ -208,7 +203,7 @@ class Dataset:
         return gather_clouds(take, starts, sizes, np.array([i]), num_points, seed, epoch, True)[0]
 
     def centres(self, keys: npt.NDArray[np.integer]) -> npt.NDArray[np.float32]:
-        """Voxel centres (float32 metres) of integer keys (`storage.samples.key_centres`)."""
+        """Voxel centres (float32 metres) of integer keys (`storage.resampling.key_centres`)."""
         return key_centres(keys, self._voxel, self._offset)
 
     def masks(self, i: int) -> tuple[int, int]:
@@ -364,8 +359,8 @@ class Dataset:
         """(train, val) by object, never by sample: every sample of an object lands on one side.
 
         ``round(val * objects)`` objects are held out, and at least one whenever ``val`` > 0 (before,
-        a small fraction of few objects rounded to none); the draw is `storage.samples.split_by_object`'s,
-        the one osvp's object split makes. A ``val`` outside [0, 1] is a `storage.samples.SplitError`
+        a small fraction of few objects rounded to none); the draw is `storage.splits.split_by_object`'s,
+        the one osvp's object split makes. A ``val`` outside [0, 1] is a `storage.splits.SplitError`
         (a ValueError).
         """
         train, held = split_by_object(self.samples.column("object_id").to_pylist(), val, seed)
@@ -439,5 +434,5 @@ class NextView:
 
 
 def mask_to_bools(mask: int, width: int) -> npt.NDArray[np.bool_]:
-    """One bool per view of a mask (bit v = view v): `storage.samples.mask_bits`."""
+    """One bool per view of a mask (bit v = view v): `storage.bits.mask_bits`."""
     return mask_bits(mask, width)

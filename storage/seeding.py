@@ -1,6 +1,6 @@
 """numpy's seeding of a PCG64 from ``SeedSequence([a, b, c])``, for many streams at once.
 
-A reader resamples every cloud from its own stream (seed, epoch, index) (`storage.samples`), and
+A reader resamples every cloud from its own stream (seed, epoch, index) (`storage.resampling`), and
 ``np.random.default_rng(np.random.SeedSequence([seed, epoch, index]))`` costs about 10 us a sample,
 more than a third of the draw itself: a SeedSequence object, its Python-level hashing, a PCG64
 object. Here the same arithmetic runs on arrays of streams (numpy's ``SeedSequence`` hashes uint32

@@ -18,8 +18,8 @@ One epoch, for a given (seed, epoch, worker count, world size):
 4. each cloud is resampled from stream (seed, epoch, dataset row index) as it is read, so a sample's
    tensors equal those of the in-memory path (`osvp.data.SampleBank`) and of
    `storage.torch.OSVPDataset` for the same seed, epoch and row, whatever the order: a cloud of
-   version 1 to 3 by `storage.samples.resample_many_keys` (`resample_keys`'s arrays, a shard's streams
-   seeded together); a version-4 refined cloud by `storage.samples.gather_clouds`, one window of its
+   version 1 to 3 by `storage.resample_many_keys` (`resample_keys`'s arrays, a shard's streams
+   seeded together); a version-4 refined cloud by `storage.gather_clouds`, one window of its
    stored order, decoding only the key chunks that hold the shard's windows (`storage.codec.RowTaker`),
    not the whole clouds;
 5. the part yields batches of ``batch_size`` samples (its last one smaller unless ``drop_last``), the
@@ -66,11 +66,14 @@ import zarr
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from schemas.shard import COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
-from storage import samples
+from storage.batch import SampleBatch, Source, check_source
+from storage.bits import bit_rows, padded_covers
 from storage.codec import RowTaker, whole_array
 from storage.covers import listed_marginals
 from storage.location import Location, open_location
 from storage.reader import Dataset, open_dataset
+from storage.resampling import gather_clouds, key_centres, resample_many_keys, windowed_cloud
+from storage.sample_fields import SAMPLE_FIELDS, ShardRows, fields_for
 from storage.shards import ShardReader
 
 WORKER_ZARR_CONFIG = {"codec_pipeline.batch_size": 64, "threading.max_workers": 1}
@@ -82,7 +85,7 @@ STREAM_TAG = 0x57EA4
 """Tag of the stream's own random streams (shard order, shuffle buffer), apart from the resampling
 streams (seed, epoch, index)."""
 
-Batch = samples.SampleBatch[torch.Tensor]
+Batch = SampleBatch[torch.Tensor]
 
 
 @dataclass(frozen=True)
@@ -95,7 +98,7 @@ class _Prepared:
     covers: npt.NDArray[np.uint64] | None
     marginals: npt.NDArray[np.float32] | None
     fields: dict[str, npt.NDArray[Any]]
-    """Its value of every registered `storage.samples.SampleField` the dataset has."""
+    """Its value of every registered `storage.SampleField` the dataset has."""
 
 
 @dataclass(frozen=True)
@@ -109,7 +112,7 @@ class _Part:
 
 
 class ShardStream(IterableDataset[Batch]):
-    """Batches of whole-shard reads, each a `storage.samples.SampleBatch` of tensors: ``points``,
+    """Batches of whole-shard reads, each a `storage.SampleBatch` of tensors: ``points``,
     ``view_state``, ``label`` and ``index`` (dataset rows); for a version-2 dataset also ``marginals``
     and ``support``, and with ``covers=True`` the listed minimum covers padded to the batch's largest
     listing (``covers``, ``cover_mask``); every registered sample field the dataset has (version 3:
@@ -129,7 +132,7 @@ class ShardStream(IterableDataset[Batch]):
         *,
         num_points: int = 2048,
         batch_size: int = 32,
-        source: samples.Source = "points",
+        source: Source = "points",
         seed: int = 0,
         epoch: int = 0,
         rows: npt.ArrayLike | None = None,
@@ -145,7 +148,7 @@ class ShardStream(IterableDataset[Batch]):
         skip: int = 0,
         storage_options: dict[str, Any] | None = None,
     ) -> None:
-        samples.check_source(source)
+        check_source(source)
         for name, value, least in (
             ("num_points", num_points, 1),
             ("batch_size", batch_size, 1),
@@ -166,10 +169,10 @@ class ShardStream(IterableDataset[Batch]):
         self.voxel_size = float(dataset.info.config.voxel_size)
         self.grid_offset = np.asarray(dataset.info.config.grid_offset, dtype=np.float64)
         self.ambiguous = dataset.has_ambiguity
-        self.windowed = samples.windowed_cloud(dataset.info.schema_version, source)
-        """Clouds read by windows of their stored order (`storage.samples.cloud_positions`)."""
-        self.field_names = [field.name for field in samples.fields_for(dataset.info.schema_version, fields)]
-        """The registered `storage.samples.SampleField`s it reads (names: a worker looks them up)."""
+        self.windowed = windowed_cloud(dataset.info.schema_version, source)
+        """Clouds read by windows of their stored order (`storage.cloud_positions`)."""
+        self.field_names = [field.name for field in fields_for(dataset.info.schema_version, fields)]
+        """The registered `storage.SampleField`s it reads (names: a worker looks them up)."""
         if covers and not self.ambiguous:
             raise ValueError(
                 f"{self.url}: covers=True needs a dataset with minimum covers (version 2); this one is version "
@@ -383,8 +386,8 @@ class ShardStream(IterableDataset[Batch]):
         masks = array(MASKS)
         rows = self._rows[shard][needed[self._rows[shard]]]
         local = self._shard_rows[rows].astype(np.int64)
-        shard_rows = samples.ShardRows(self.source, local, array)
-        fields = {name: samples.SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
+        shard_rows = ShardRows(self.source, local, array)
+        fields = {name: SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
         # What a sample carries besides its cloud, for all the shard's rows at once.
         view_states = masks[local, VIEW_STATE_COLUMN].tolist()
         labels = masks[local, LABEL_COLUMN].tolist()
@@ -399,12 +402,12 @@ class ShardStream(IterableDataset[Batch]):
             take = RowTaker(reader, keys_array(self.source)).take
             first = offsets[local]
             sizes = offsets[local + 1] - first
-            windows = samples.gather_clouds(take, first, sizes, rows, self.num_points, self.seed, epoch, True)
+            windows = gather_clouds(take, first, sizes, rows, self.num_points, self.seed, epoch, True)
             resampled = list(windows)
         else:
             keys = array(keys_array(self.source))
             clouds = [keys[start:end] for start, end in zip(starts, ends, strict=True)]
-            resampled = samples.resample_many_keys(clouds, self.num_points, self.seed, epoch, listed_rows)
+            resampled = resample_many_keys(clouds, self.num_points, self.seed, epoch, listed_rows)
         out: dict[int, _Prepared] = {}
         for slot, row in enumerate(listed_rows):
             out[row] = _Prepared(
@@ -424,25 +427,25 @@ class ShardStream(IterableDataset[Batch]):
         extra: dict[str, npt.NDArray[Any]] = {}
         if self._support is not None:
             extra["marginals"] = np.stack([s.marginals for s in prepared if s.marginals is not None])
-            extra["support"] = samples.bit_rows(self._support[rows], width)
+            extra["support"] = bit_rows(self._support[rows], width)
         if self.covers:
             listed = [s.covers if s.covers is not None else np.zeros(0, np.uint64) for s in prepared]
-            extra["covers"], extra["cover_mask"] = samples.padded_covers(listed, width)
+            extra["covers"], extra["cover_mask"] = padded_covers(listed, width)
         for name in self.field_names:
             extra[name] = np.stack([s.fields[name] for s in prepared])
         small: dict[str, npt.NDArray[Any]] = {
-            "view_state": samples.bit_rows(np.array([s.view_state for s in prepared], dtype=np.uint64), width),
-            "label": samples.bit_rows(np.array([s.label for s in prepared], dtype=np.uint64), width),
+            "view_state": bit_rows(np.array([s.view_state for s in prepared], dtype=np.uint64), width),
+            "label": bit_rows(np.array([s.label for s in prepared], dtype=np.uint64), width),
             "index": rows.astype(np.int64, copy=True),
             **extra,
         }
         keys = np.stack([s.keys for s in prepared])
         layout = {"points": (keys.shape, np.dtype(np.float32))} | {k: (v.shape, v.dtype) for k, v in small.items()}
         tensors, arrays = _one_storage(layout, shared=get_worker_info() is not None)
-        samples.key_centres(keys, self.voxel_size, self.grid_offset, out=arrays["points"])
+        key_centres(keys, self.voxel_size, self.grid_offset, out=arrays["points"])
         for name, values in small.items():
             arrays[name][...] = values
-        return samples.SampleBatch(**tensors)
+        return SampleBatch(**tensors)
 
 
 def _one_storage(

@@ -2,8 +2,8 @@
 sampler. Importing `storage` never imports torch; importing this module does.
 
 Resampling to ``num_points`` depends only on (seed, epoch, index), never on worker count or order,
-so two runs with the same seeds see identical tensors (`storage.samples`, the contract every reader
-shares: `storage.memory` and osvp give the same tensors for the same seed, epoch and index). Shard
+so two runs with the same seeds see identical tensors (`storage.resampling` and `storage.batch`, the
+contract every reader shares: `storage.memory` and osvp give the same tensors for the same seed, epoch and index). Shard
 handles are opened lazily in each worker process (fork and spawn both work: the dataset pickles
 without them). A damaged dataset is a
 `storage.StorageError` naming the file and the fix, never a silently zeroed sample (`storage.reader`).
@@ -18,8 +18,9 @@ import torch
 from torch.utils.data import DataLoader, Sampler
 from torch.utils.data import Dataset as TorchDataset
 
+from storage.batch import SampleBatch, Source, check_source
+from storage.bits import bit_rows
 from storage.reader import Dataset, open_dataset
-from storage.samples import SampleBatch, Source, bit_rows, check_source
 
 Item = dict[str, torch.Tensor]
 """One sample: the fields of a `SampleBatch` without the batch axis (what a DataLoader's default
@@ -35,7 +36,7 @@ def collate_samples(items: Sequence[Mapping[str, torch.Tensor]]) -> SampleBatch[
 
 class OSVPDataset(TorchDataset[Item]):
     """Samples as tensors: ``points`` (num_points, 3) float32, ``view_state`` and ``label`` (n,)
-    float32 (0/1), plus ``index``; `loader` batches them as `storage.samples.SampleBatch`."""
+    float32 (0/1), plus ``index``; `loader` batches them as `storage.batch.SampleBatch`."""
 
     def __init__(
         self,

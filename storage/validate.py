@@ -47,10 +47,11 @@ from schemas.shard import (
     ordered_points,
     point_order,
 )
-from storage.covers import listed_problem, undominated, universe_rows
+from storage.covers import undominated, universe_rows
 from storage.dataset_info import read_info
 from storage.file_checks import check_failures, check_finalised_index, check_fragments, leftover_temporaries
 from storage.gains import MaskCounts
+from storage.label_judges import JudgedTask, LabelJudge, task_judge
 from storage.location import DamagedFile, Location, StorageError, open_location
 from storage.manifest import TaskRecords, task_records
 from storage.occupancy import PACKED_CELLS
@@ -58,7 +59,7 @@ from storage.problems import Mend, Problem, lines
 from storage.sample_index import numpy_of
 from storage.shards import ShardReader
 from storage.store_errors import check_store
-from storage.visibility import VisibilityJudge, key_view_masks
+from storage.visibility import key_view_masks
 
 SAMPLED_ROWS_PER_SHARD = 8
 SHARD_THREADS = 8
@@ -342,15 +343,10 @@ def _check_open_shard(
         yield at("sample", "label shares views with the input case", MASKS, f"row {row}")
     rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
     full_masks = _full_masks(arrays, num_views, config.alpha)
-    if config.label_objective == "cover":
-        yield from _check_coverage(at, masks, full_masks, rows)
-        ties_problem: TiesProblem = _covers_problem
-    else:
-        judge = VisibilityJudge(_task_sets(arrays, "visible", num_views), config)
-        yield from _check_visibility(at, masks, judge, rows)
-        ties_problem = judge.ties_problem
+    judge = task_judge(JudgedTask(full_masks, lambda: _task_sets(arrays, "visible", num_views), config))
+    yield from _check_labels(at, masks, judge, rows)
     if schema_version >= 2:
-        yield from _check_covers(at, arrays, count, full_masks, rows, ties_problem)
+        yield from _check_covers(at, arrays, count, full_masks, rows, judge.ties_problem)
     if schema_version >= 3:
         yield from _check_next_view(at, arrays, count, num_views, full_masks, rows)
     if shard_check is not None:
@@ -443,26 +439,14 @@ def _full_masks(arrays: dict[str, npt.NDArray[Any]], num_views: int, alpha: int)
     return key_masks[np.bitwise_count(key_masks) >= alpha]
 
 
-def _check_coverage(
-    at: _Shard, masks: npt.NDArray[np.uint64], full_masks: npt.NDArray[np.uint64], rows: npt.NDArray[np.int64]
+def _check_labels(
+    at: _Shard, masks: npt.NDArray[np.uint64], judge: LabelJudge, rows: npt.NDArray[np.int64]
 ) -> Iterator[Problem]:
-    """Each checked row's label must cover its U (the P_full keys its input views miss)."""
-    for row in rows:
-        case, label = np.uint64(masks[row, VIEW_STATE_COLUMN]), np.uint64(masks[row, LABEL_COLUMN])
-        universe = full_masks[(full_masks & case) == 0]
-        uncovered = int(np.count_nonzero((universe & label) == 0))
-        if uncovered:
-            yield at("uncovered", f"label leaves {uncovered} keys of U uncovered", MASKS, f"row {row}")
-
-
-def _check_visibility(
-    at: _Shard, masks: npt.NDArray[np.uint64], judge: VisibilityJudge, rows: npt.NDArray[np.int64]
-) -> Iterator[Problem]:
-    """A visibility objective's labels keep its promise (budget, share of the reference reached)."""
+    """Each checked row's label keeps its objective's promise (`storage.label_judges`)."""
     for row in rows.tolist():
         problem = judge.label_problem(int(masks[row, VIEW_STATE_COLUMN]), int(masks[row, LABEL_COLUMN]))
         if problem:
-            yield at("label", problem, MASKS, f"row {row}")
+            yield at(judge.problem_kind, problem, MASKS, f"row {row}")
 
 
 TiesProblem = Callable[[npt.NDArray[np.uint64], int, int, npt.NDArray[np.uint64]], str | None]
@@ -506,20 +490,6 @@ def _check_covers(
         problem = ties_problem(listed, case, label, universe_rows(cover_rows, case))
         if problem:
             yield at("covers", problem, COVERS, f"row {row}")
-
-
-def _covers_problem(listed: npt.NDArray[np.uint64], case: int, label: int, rows: npt.NDArray[np.uint64]) -> str | None:
-    """What is wrong with one sample's listed minimum covers, or None (also when the label itself
-    does not cover U: `_check_coverage` names that)."""
-    if rows.size and not ((rows & np.uint64(label)) != 0).all():
-        return None
-
-    def covering(sets: npt.NDArray[np.uint64]) -> str | None:
-        if rows.size and not ((sets[:, None] & rows[None, :]) != 0).all():
-            return "a listed minimum cover leaves keys of U uncovered"
-        return None
-
-    return listed_problem(listed, case, label, ("minimum cover", "minimum covers"), covering)
 
 
 def _check_next_view(

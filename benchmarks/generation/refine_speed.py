@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import os
 
-from benchmarks.common import SHARED_MESHES, limit_threads
+from benchmarks.common import SHARED_MESHES, add_report_options, check_report, limit_threads
 
 limit_threads(torch_threads=1)
 
@@ -133,8 +133,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--split", action="store_true", help="also time the steps (one more pass each)")
     parser.add_argument("--no-version2", action="store_true", help="skip poco_version = 2")
-    parser.add_argument("--out", type=Path, default=None, help="write the markdown tables here")
+    add_report_options(parser, None, "write the markdown tables here")
     args = parser.parse_args()
+    check_report(parser, args.out, args.replace)
     config = GenerationConfig()
     lines = [f"builtin:{name}" for name in args.builtins.split(",") if name]
     for name in (n for n in args.meshes.split(",") if n):

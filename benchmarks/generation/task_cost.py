@@ -52,7 +52,7 @@ from __future__ import annotations
 import os
 
 from benchmarks import common
-from benchmarks.common import REPO_ROOT, limit_threads
+from benchmarks.common import REPO_ROOT, add_report_options, check_report, limit_threads
 
 limit_threads()
 
@@ -952,9 +952,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--rotation", type=int, default=0, help="the task's rotation (default 0)")
     parser.add_argument("--floor-repeats", type=int, default=3, help="runs per floor; the best counts (default 3)")
     parser.add_argument("--no-warm-up", action="store_true", help="skip the untimed warm-up task")
-    parser.add_argument(
-        "--out", type=Path, default=RESULTS, help=f"Markdown report (default {RESULTS.relative_to(REPO_ROOT)})"
-    )
+    add_report_options(parser, RESULTS, "Markdown report")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument(
         "--save-json", type=Path, help="save the raw results here (for --render; default: beside --out, as .json)"
@@ -1090,6 +1088,8 @@ def measure(args: argparse.Namespace) -> Run:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
+    if not args.no_write:
+        check_report(argparse.ArgumentParser(prog="task_cost"), args.out, args.replace)
     if args.render:
         run = merged([(path.stem, Run.from_json(json.loads(path.read_text()))) for path in args.render])
     else:

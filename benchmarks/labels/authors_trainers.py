@@ -1,8 +1,8 @@
 """Check: the authors' unmodified trainers read each export layout and train one epoch on a CPU.
 
-    python -m benchmarks.labels.authors_trainers [--authors /work/authors/MA-SCVP] [--work DIR]
+    python -m benchmarks.labels.authors_trainers --authors CLONE --work NEW_DIR
         [--url DATASET] [--objects capsule,cone,l_bracket] [--rotations 2] [--only NAME,...]
-        [--out benchmarks/labels/results/authors-trainers.md]
+        [--out benchmarks/labels/results/authors-trainers.md --replace]
 
 1. Builds a small dataset with ``datagen submit`` (built-in objects, refiner none, ``--rotations``
    rotations; local Ray), unless ``--url`` names one.
@@ -13,7 +13,10 @@
    (docs/authors-code.md sections 7.3-7.5 say what each needed), recording what its loaders read
    and every loss it back-propagated.
 4. Checks by sha256 that every file of theirs in each copy is byte for byte the clone's, after the run.
-5. Writes the results (``--out``): the exact commands, exit codes, what each loader read, the losses.
+5. Writes the results: the exact commands, exit codes, what each loader read, the losses, to
+   ``WORK/authors-trainers.md`` or ``--out`` (a committed result is written over only with ``--replace``).
+
+``--work`` must be a new or empty folder: the harness writes only there and deletes nothing it did not make.
 
 The stand-ins on PYTHONPATH (``authors_standins/``) are the only code added: torchvision's ``Compose``
 where torchvision is not installed, and PC-NBV's unreleased ``dataset.dataset`` loader.
@@ -38,12 +41,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import REPO_ROOT
+from benchmarks.common import REPO_ROOT, add_report_options, check_new_folder, check_report
 
 STANDINS = Path(__file__).resolve().parent / "authors_standins"
 LAUNCHER = STANDINS / "launch.py"
-DEFAULT_AUTHORS = Path("/work/authors/MA-SCVP")
-DEFAULT_OUT = REPO_ROOT / "benchmarks" / "labels" / "results" / "authors-trainers.md"
+RESULT = REPO_ROOT / "benchmarks" / "labels" / "results" / "authors-trainers.md"
+"""The committed result (``--out`` it with ``--replace`` to update it)."""
 NETWORKS = "Networks_pytorch"
 VAL = 0.34
 TIMEOUT_S = 3600
@@ -411,23 +414,24 @@ def report(
     return "\n".join(out) + "\n"
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--authors", type=Path, default=DEFAULT_AUTHORS, help="A clone of psc0628/MA-SCVP.")
-    parser.add_argument("--work", type=Path, default=Path("/work/authors/run"), help="Scratch folder (replaced).")
+    parser.add_argument("--authors", type=Path, required=True, help="A clone of psc0628/MA-SCVP.")
+    parser.add_argument("--work", type=Path, required=True, help="A new or empty scratch folder.")
     parser.add_argument("--url", help="Export this dataset instead of building one.")
     parser.add_argument("--objects", default="capsule,cone,l_bracket", help="Built-in objects of the dataset.")
     parser.add_argument("--rotations", type=int, default=2)
     parser.add_argument("--only", help="Comma-separated trainer names (default: all).")
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
-    args = parser.parse_args()
+    add_report_options(parser, None, f"the report (default WORK/authors-trainers.md; committed: {RESULT.name})")
+    args = parser.parse_args(argv)
+    check_new_folder(parser, args.work)
+    args.out = args.out or args.work / "authors-trainers.md"
+    check_report(parser, args.out, args.replace)
     if not (args.authors / NETWORKS).is_dir():
         raise SystemExit(f"{args.authors}: no {NETWORKS} folder; clone psc0628/MA-SCVP there or pass --authors")
     chosen = [TRAINERS[name] for name in args.only.split(",")] if args.only else list(TRAINERS.values())
     work = args.work.resolve()
-    if work.exists():
-        shutil.rmtree(work)
-    work.mkdir(parents=True)
+    work.mkdir(parents=True, exist_ok=True)
     state = git_state(args.authors)
     built = None
     url = args.url

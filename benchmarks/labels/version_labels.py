@@ -15,7 +15,8 @@ draw other cases, so their labels differ as much as two equally good datasets ca
 whose labels differ from the old one's, at the same seed, by no more than that is as good by this
 measure (issue 24's rule for a refiner version that changes outputs). ``--variants NAME=SETTINGS``
 judges a candidate that is not a version yet the same way: the first version's config plus the given
-settings (TOML lines, ``;`` between them), e.g. a narrower band.
+settings (TOML lines, ``;`` between them; a ``poco_version`` among them replaces the first version),
+e.g. a narrower band.
 """
 
 from __future__ import annotations
@@ -119,7 +120,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         name, _, settings = variant.partition("=")
         if not name or not settings:
             parser.error(f"--variants {variant!r}: give NAME=SETTINGS")
-        candidates[name] = (name, f"poco_version = {args.versions[0]}\n" + settings.replace(";", "\n"))
+        lines = settings.replace(";", "\n")
+        version = "" if "poco_version" in lines else f"poco_version = {args.versions[0]}\n"
+        candidates[name] = (name, version + lines)
     results: dict[str, Runs] = {}
     with tempfile.TemporaryDirectory() as folder:
         for seed, (label, (name, settings)) in itertools.product(args.seeds, candidates.items()):

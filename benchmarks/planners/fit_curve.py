@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from benchmarks.common import add_report_options, check_report
 from benchmarks.planners.runs import run, write_markdown
 
 DECODING = "size"
@@ -60,9 +61,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--run", action="append", required=True, help="NAME=FOLDER of an osvp train run")
     parser.add_argument("--batch-size", type=int, default=32)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--out", type=Path)
+    add_report_options(parser)
     parser.add_argument("--png", type=Path)
     args = parser.parse_args(argv)
+    check_report(parser, args.out, args.replace)
     runs = [(name, Path(folder)) for name, folder in (pair.split("=", 1) for pair in args.run)]
     head = "| run | training samples | steps | held-out F1, best epoch | held-out F1, last | training F1, last | gap |"
     lines = [head, "|---|---|---|---|---|---|---|"]

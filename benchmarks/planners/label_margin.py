@@ -31,6 +31,7 @@ import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
+from benchmarks.common import add_report_options, check_report
 from benchmarks.planners.runs import pm, unseen, write_markdown
 
 FLOOR = [f"{kind}:{k}" for k in range(2, 7) for kind in ("fixed", "spread", "random")]
@@ -142,10 +143,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--no-floor", action="store_true", help="leave out the fixed/spread/random rows at 2-6 views")
     parser.add_argument("--tau", type=float, help="also the views each planner needs to see this share")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, help="write the tables as Markdown here")
+    add_report_options(parser, None, "write the tables as Markdown here")
     parser.add_argument("--json", type=Path, help="keep evaluate's whole report here")
     parser.add_argument("--report", type=Path, help="tables from a report kept with --json, without evaluating")
     args = parser.parse_args(argv)
+    check_report(parser, args.out, args.replace)
     planners = [*args.objectives, *args.planner, *([] if args.no_floor else FLOOR)]
     extra = ["--workers", str(args.workers), *(["--tau", str(args.tau)] if args.tau is not None else [])]
     if args.report:

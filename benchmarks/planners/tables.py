@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.common import add_report_options, check_report
 from benchmarks.planners.runs import pm, unseen, write_markdown
 
 PAPER = {
@@ -236,11 +237,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--budget", type=int, default=6, help="Table III: views in all every planner is held to")
     parser.add_argument("--config", type=Path, help="the evaluation's config (e.g. the training set's poco_version)")
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, help="write the tables as Markdown here")
+    add_report_options(parser, None, "write the tables as Markdown here")
     parser.add_argument("--png", type=Path, help="draw coverage against views here")
     parser.add_argument("--json", type=Path, help="keep evaluate's whole report here")
     parser.add_argument("--report", type=Path, help="the tables from a report kept with --json, without evaluating")
     args = parser.parse_args(argv)
+    check_report(parser, args.out, args.replace)
     if args.budget not in FLOOR_COUNTS:
         parser.error(f"--budget {args.budget}: give 2 to 10 views in all")
     names = dict(pair.rsplit("=", 1) for pair in args.name)

@@ -1,9 +1,8 @@
 """Benchmark: the streaming read path (`storage.stream.ShardStream`) against today's map-style one
 (`storage.torch.OSVPDataset` + `ShardShuffleSampler` + DataLoader), measured in the same run.
 
-    python -m benchmarks.reading.streaming --make [--source /work/runs/big/train-v2] [--big /work/runs/stream-200k]
-    python -m benchmarks.reading.streaming [--data /work/runs/big/train-v2 [--data OTHER ...]]
-        [--big /work/runs/stream-200k]
+    python -m benchmarks.reading.streaming --make --source DATASET --big NEW_DATASET
+    python -m benchmarks.reading.streaming --data DATASET [--data OTHER ...] --big NEW_DATASET
         [--seconds 0] [--repeats 3] [--s3 seaweedfs|moto|none] [--s3-shards 120]
         [--out benchmarks/reading/results/streaming.md]
 
@@ -42,7 +41,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import REPO_ROOT, use_test_support
+from benchmarks.common import REPO_ROOT, add_report_options, check_report, use_test_support
 
 OPTIONS_ENV = "STREAMING_BENCH_STORAGE_OPTIONS"
 """Storage options of an S3 run reach the measuring subprocess here (never on its command line)."""
@@ -401,12 +400,10 @@ def benchmark(args: argparse.Namespace) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     parser.add_argument("--make", action="store_true", help="write --big from --source, then stop")
-    parser.add_argument("--source", default="/work/runs/big/train-v2")
+    parser.add_argument("--source", help="with --make: the dataset whose samples are repeated into --big")
     parser.add_argument("--samples", type=int, default=200_000)
-    parser.add_argument(
-        "--data", action="append", help="a dataset to read; repeat to compare (default /work/runs/big/train-v2)"
-    )
-    parser.add_argument("--big", default="/work/runs/stream-200k")
+    parser.add_argument("--data", action="append", help="a dataset to read; repeat to compare")
+    parser.add_argument("--big", help="the 200k-sample dataset the memory rows stream (made by --make)")
     parser.add_argument("--seconds", type=float, default=0.0, help="stop each throughput run after this (0: an epoch)")
     parser.add_argument("--memory-seconds", type=float, default=60.0)
     parser.add_argument("--repeats", type=int, default=3)
@@ -415,7 +412,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--s3", choices=("seaweedfs", "moto", "none"), default="seaweedfs")
     parser.add_argument("--s3-shards", type=int, default=120)
-    parser.add_argument("--out", type=Path, default=None, help="also write the table here (markdown)")
+    add_report_options(parser, None, "also write the table here (markdown)")
     # one measurement, in a subprocess of the benchmark
     parser.add_argument("--measure", choices=("baseline", "stream"), help=argparse.SUPPRESS)
     parser.add_argument("--url", help=argparse.SUPPRESS)
@@ -423,14 +420,18 @@ def main() -> None:
     parser.add_argument("--read-ahead", type=int, default=2, help=argparse.SUPPRESS)
     parser.add_argument("--context", default="fork", help=argparse.SUPPRESS)
     args = parser.parse_args()
-    args.data = args.data or ["/work/runs/big/train-v2"]
+    check_report(parser, args.out, args.replace)
     if args.measure:
         args.path = args.measure
         print(json.dumps(measure(args)))
         return
     if args.make:
+        if not args.source or not args.big:
+            parser.error("--make needs --source DATASET and --big NEW_DATASET")
         make_big(args.source, args.big, args.samples)
         return
+    if not args.data or not args.big:
+        parser.error("give --data DATASET (repeat to compare) and --big DATASET (made by --make)")
     table = benchmark(args)
     print(table)
     if args.out is not None:

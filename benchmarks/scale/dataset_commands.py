@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import REPO_ROOT
+from benchmarks.common import REPO_ROOT, add_report_options, check_report
 from benchmarks.scale.measure import Cache, Measurement, growth, machine_line, run_measured
 from benchmarks.scale.objects import source_env
 
@@ -231,9 +231,10 @@ def main() -> None:
     parser.add_argument("--rows", nargs="+", default=[row for row, _ in ROWS])
     parser.add_argument("--work", type=Path, default=Path("/tmp/datagen-scale-storage"))
     parser.add_argument("--fresh", action="store_true")
-    parser.add_argument("--out", type=Path)
+    add_report_options(parser)
     parser.add_argument("--plot", type=Path)
     args = parser.parse_args()
+    check_report(parser, args.out, args.replace)
     labels = dict(item.split("=", 1) for item in args.source) if args.source else {"after": "."}
     trees = {label: Path(tree).resolve() for label, tree in labels.items()}
     sizes = {label: args.before_sizes if label == "before" else args.sizes for label in trees}

@@ -43,7 +43,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from benchmarks.common import REPO_ROOT
+from benchmarks.common import REPO_ROOT, add_report_options, check_report
 from benchmarks.scale.measure import Cache, Measurement, growth, machine_line, run_measured
 from benchmarks.scale.objects import ROTATIONS, ensure_synth, first_lines, objects_cases, source_env
 
@@ -385,9 +385,10 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2, help="local Ray worker CPUs of a driver run")
     parser.add_argument("--deadline", type=float, default=1800.0, help="seconds before a driver run is stopped")
     parser.add_argument("--fresh", action="store_true", help="measure again what the cache holds")
-    parser.add_argument("--out", type=Path, help="results file (Markdown)")
+    add_report_options(parser, None, "results file (Markdown)")
     parser.add_argument("--plot", type=Path, help="plot (PNG)")
     args = parser.parse_args()
+    check_report(parser, args.out, args.replace)
     sources = [tuple(s.split("=", 1)) for s in args.source] or [("after", str(REPO_ROOT))]
     labels = [label for label, _ in sources]
     args.work.mkdir(parents=True, exist_ok=True)

@@ -24,7 +24,7 @@ import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from benchmarks.common import use_test_support
+from benchmarks.common import add_report_options, check_report, use_test_support
 from benchmarks.scale.measure import Measurement, machine_line, run_measured
 from benchmarks.scale.objects import source_env
 
@@ -55,8 +55,9 @@ def main() -> None:
     parser.add_argument("--source", action="append", default=[], help="LABEL=TREE (default: after=.)")
     parser.add_argument("--with-shards", type=int, default=10_000)
     parser.add_argument("--work", type=Path, default=Path(tempfile.gettempdir()) / "datagen-scale-s3")
-    parser.add_argument("--out", type=Path)
+    add_report_options(parser)
     args = parser.parse_args()
+    check_report(parser, args.out, args.replace)
     trees = {"after": Path(".").resolve(), **{k: Path(v).resolve() for k, v in (s.split("=", 1) for s in args.source)}}
     use_test_support()
     from support.s3_servers import seaweedfs_server

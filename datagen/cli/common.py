@@ -90,6 +90,31 @@ def print_rows(columns: list[str], rows: Iterable[list[Cell]], out: Console | No
     out.file.flush()
 
 
+def print_table(table: Table, out: Console | None = None) -> None:
+    """A rich table as it is on a terminal; elsewhere its title (if any) on a line of its own, then its
+    header (if shown) and rows as tab-separated lines, never wrapped or cut (ids, names and hashes are
+    copied from them whole)."""
+    out = out or console
+    if out.is_terminal:
+        out.print(table)
+        return
+    lines: list[list[str]] = []
+    if table.title:
+        lines.append([str(table.title)])
+    columns = table.columns
+    if table.show_header:
+        lines.append([str(column.header) for column in columns])
+    for row in range(table.row_count):
+        lines.append([_plain(column._cells[row]) for column in columns])
+    for cells in lines:
+        out.file.write("\t".join(" ".join(cell.split("\t")) for cell in cells) + "\n")
+    out.file.flush()
+
+
+def _plain(cell: object) -> str:
+    return cell.plain if isinstance(cell, Text) else str(cell)
+
+
 def progress_bar(remaining: bool = False) -> Progress:
     """A transient bar for a long command (``remaining``: with the time left); disabled when output
     goes to a pipe or a test runner, which get the result lines only."""

@@ -92,9 +92,21 @@ def evaluate(
         float | None,
         typer.Option("--tau", help="Also report the views each planner needs to see this share (0-1) of the surface."),
     ] = None,
+    margins: Annotated[
+        str | None,
+        typer.Option(
+            "--margins",
+            help=(
+                "Views (the initial one included), e.g. 3,4,6: per object and budget, each planner's margin over "
+                "the better of fixed and spread at equal views, the ceiling's (gain) and the share it captures, "
+                "and the views it needs to see 95 and 99 %; needs -p gain and -p spread or -p fixed."
+            ),
+        ),
+    ] = None,
 ) -> None:
     """Simulate the one-shot pipeline on each object and report coverage, views and movement per planner."""
     from datagen.evaluate.episode import Budget
+    from datagen.evaluate.margins import margin_rows, margin_table
     from datagen.evaluate.planners import PlannerContext
     from datagen.evaluate.report import markdown_table, per_object_rows, summarise
     from datagen.evaluate.run import EvaluationSpec, ObjectOutcome, check_planners, evaluate, parse_selection
@@ -109,6 +121,7 @@ def evaluate(
             raise InvalidArgument(f"--tau {tau}: give a share of the surface in (0, 1]")
         chosen_views = parse_selection(initial_views, resolved.num_views, "--initial-views")
         chosen_rotations = parse_selection(rotations, resolved.rotations, "--rotations")  # before any work
+        budgets = _margin_budgets(margins, resolved.num_views, planner)
         fixed = None
         if fixed_from is None:
             check_planners(planner, PlannerContext(resolved))  # a fixed planner: one line naming --fixed-from
@@ -157,6 +170,7 @@ def evaluate(
                         "rows": [row.as_dict() for row in rows],
                         "per_object": [row.as_dict() for row in per_object_rows(episodes, tau)],
                         "runs": [episode.as_dict() for episode in episodes],
+                        "margins": [row.as_dict() for row in margin_rows(episodes, budgets)] if budgets else None,
                         "failures": result.all_failures,
                     },
                     indent=1,
@@ -167,6 +181,9 @@ def evaluate(
             if per_object:
                 say("")
                 say(markdown_table(per_object_rows(episodes, tau)))
+            if budgets:
+                say("")
+                say(margin_table(margin_rows(episodes, budgets)))
             refine: dict[str, list[float]] = {}
             for outcome in result.outcomes:
                 for name, times in outcome.refine_seconds.items():
@@ -179,3 +196,24 @@ def evaluate(
                 say(f"figures: {png} and {sum(len(o.pictures) for o in result.outcomes)} per-object pictures beside it")
         if result.all_failures:
             raise typer.Exit(EXIT_SOME_FAILED)
+
+
+def _margin_budgets(text: str | None, num_views: int, planners: list[str]) -> list[int]:
+    """``--margins`` as view counts, refused before any work (bad numbers, or no ceiling or floor asked for)."""
+    from datagen.evaluate.margins import CEILING, FLOORS, kind_of
+
+    if text is None:
+        return []
+    try:
+        budgets = sorted({int(part) for part in text.split(",") if part.strip()})
+    except ValueError:
+        raise InvalidArgument(f"--margins {text!r}: give view counts separated by commas, e.g. 3,4,6") from None
+    if not budgets or budgets[0] < 2 or budgets[-1] > num_views:
+        raise InvalidArgument(f"--margins {text!r}: give view counts from 2 to {num_views} (the initial view counts)")
+    kinds = {kind_of(spec) for spec in planners}
+    if CEILING not in kinds or not kinds.intersection(FLOORS):
+        raise InvalidArgument(
+            "--margins needs the ceiling and a floor among the planners: add -p gain, -p spread and "
+            "-p fixed (with --fixed-from)"
+        )
+    return budgets

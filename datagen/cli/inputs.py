@@ -19,7 +19,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 from rich.text import Text
 
-from datagen.cli.common import Cell, ConfigOption, console, error_console, print_rows, say, user_errors
+from datagen.cli.common import Cell, ConfigOption, console, error_console, print_rows, print_table, say, user_errors
 from datagen.config_io import config_to_toml, load_config
 from datagen.errors import DatagenError, OutputError
 from datagen.pipeline.thread_limits import single_threaded_blas
@@ -45,7 +45,7 @@ def objects_builtins() -> None:
     for name in builtins.builtin_names():
         shape = builtins.get_builtin(name)
         table.add_row(name, shape.family, shape.description)
-    console.print(table)
+    print_table(table)
 
 
 def objects_show(
@@ -278,7 +278,7 @@ def scan(
                         f"{result.seconds:.2f}",
                     )
                     progress.advance(bar)
-        console.print(table)
+        print_table(table)
         console.print(f"{table.row_count} tasks in {time.perf_counter() - started:.1f} s")
         for problem in problems:
             console.print(Text("error: ", style="red") + Text(problem), highlight=False)

@@ -10,7 +10,7 @@ from typing import Annotated
 
 import typer
 
-from datagen.cli.common import console, user_errors
+from datagen.cli.common import console, print_table, user_errors
 
 
 def poco_train(
@@ -150,7 +150,7 @@ def poco_eval(
         if evaluated:
             for method in methods:
                 add("mean", method, mean_metrics(evaluated, method))
-        console.print(table)
+        print_table(table)
 
 
 def poco_export(
@@ -192,7 +192,7 @@ def poco_export(
             table.add_row(
                 *(f"{row[k]:.3f}" for k in ("threshold", "precision", "recall", "iou", "miou", "hidden_recall"))
             )
-        console.print(table)
+        print_table(table)
         tuned = tune_threshold(ev["prob"], ev["label"], ev["is_gt"], min_hidden_recall)
         console.print("tuned: " + ", ".join(f"{k} {v:.3f}" for k, v in tuned.items()), markup=False, highlight=False)
         export_weights(source, out, threshold=tuned["threshold"])

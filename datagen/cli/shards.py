@@ -1,16 +1,17 @@
 """``datagen shards``: the group that inspects, validates, relabels, packs and exports datasets.
 
 Builds `shards_app` and registers the plain functions of `shards_export` (export), `shards_check`
-(validate, relabel), `shards_repair` (repair), `shards_pack` (pack) and `shards_view` (ls, show,
-stats); `datagen.cli.main` mounts it with ``app.add_typer(shards_app, name="shards")``. A group of its
-own so that a benchmark or a test can mount it on its own app.
+(validate, relabel), `shards_repair` (repair), `shards_pack` (pack), `shards_view` (ls, show,
+stats) and `shards_card` (card); `datagen.cli.main` mounts it with
+``app.add_typer(shards_app, name="shards")``. A group of its own so that a benchmark or a test can
+mount it on its own app.
 """
 
 from __future__ import annotations
 
 import typer
 
-from datagen.cli import shards_check, shards_export, shards_pack, shards_repair, shards_view
+from datagen.cli import shards_card, shards_check, shards_export, shards_pack, shards_repair, shards_view
 
 shards_app = typer.Typer(help="Inspect, validate and export datasets.", no_args_is_help=True)
 
@@ -22,3 +23,4 @@ shards_app.command("pack")(shards_pack.pack)
 shards_app.command("ls")(shards_view.ls)
 shards_app.command("show")(shards_view.show)
 shards_app.command("stats")(shards_view.stats)
+shards_app.command("card")(shards_card.card)

@@ -20,12 +20,13 @@ import typer
 from rich import box
 from rich.table import Table
 
-from datagen.cli.common import Cell, UrlArgument, console, dataset_options, print_rows, say, user_errors
+from datagen.cli.common import Cell, UrlArgument, dataset_options, print_rows, print_table, say, user_errors
 from datagen.errors import OutputError
 from datagen.inspection.listing import FAILED, SampleDetails, TaskRow, describe_sample, find_sample, list_tasks
 from datagen.inspection.stats import DatasetStats, dataset_stats
 from datagen.pipeline.step_timing import step_lines
-from storage.samples import mask_bits
+from schemas.objectives import objective_named
+from storage.bits import mask_bits
 
 PngOption = Annotated[Path | None, typer.Option("--png", metavar="FILE", help="Also draw it to this PNG file.")]
 
@@ -233,7 +234,7 @@ def show(
     with user_errors(url):
         dataset = open_dataset(url, dataset_options(url))
         details = describe_sample(dataset, find_sample(dataset, sample))
-        console.print(sample_table(details))
+        print_table(sample_table(details))
         if png is not None:
             from datagen.inspection.plots import draw_sample
 
@@ -278,12 +279,12 @@ def print_stats(stats: DatasetStats) -> None:
     for case_size, count in stats.cases_per_case_size.items():
         labels = stats.label_sizes.get(case_size, {})
         per_case.add_row(str(case_size), str(count), str(labels.get(0, 0)), _histogram_text(labels))
-    console.print(per_case)
+    print_table(per_case)
 
     spread = _table("per sample", "p0", "p5", "p50", "p95", "p100", title="percentiles")
     spread.add_row("points", *("-" if v is None else f"{v:.0f}" for v in stats.points_percentiles.values()))
     spread.add_row("solver time", *(format_seconds(v) for v in stats.solver_seconds_percentiles.values()))
-    console.print(spread)
+    print_table(spread)
     say("proofs: " + (", ".join(f"{kind} {count}" for kind, count in stats.solver_proofs.items()) or "none"))
     print_ambiguity(stats)
     print_next_view(stats)
@@ -294,7 +295,7 @@ def print_stats(stats: DatasetStats) -> None:
         failed = _table("task", "object", "message", title="failed tasks")
         for task in stats.failed:
             failed.add_row(task.task_id, task.object_name or "-", task.message)
-        console.print(failed)
+        print_table(failed)
 
 
 def print_ambiguity(stats: DatasetStats) -> None:
@@ -303,18 +304,17 @@ def print_ambiguity(stats: DatasetStats) -> None:
     if found is None:
         say("minimum covers: not recorded (schema 1; `datagen shards relabel URL --out URL2` adds them)")
         return
-    many = "minimum covers" if stats.objective == "cover" else "ties"
-    unique = "unique minimum cover" if stats.objective == "cover" else "no tie"
+    many, unique = objective_named(stats.objective).ties_words
     table = _table("|S|", unique, f"median {many}", title="label ambiguity (non-empty labels)")
     for name, share in found.unique.items():
         table.add_row(name, f"{share:.1%}", f"{found.median_covers[name]:.0f}")
-    console.print(table)
+    print_table(table)
     spread = _table("per label", "p0", "p5", "p50", "p95", "p100")
     spread.add_row(many, *("-" if v is None else f"{v:.0f}" for v in found.count_percentiles.values()))
     spread.add_row(
         "support views", *("-" if v is None else f"{v:.0f}" for v in found.support_size_percentiles.values())
     )
-    console.print(spread)
+    print_table(spread)
     if found.capped:
         say(f"{found.capped} labels have more {many} than the cap: their counts are lower bounds")
 
@@ -328,10 +328,10 @@ def print_next_view(stats: DatasetStats) -> None:
     table = _table("|S|", "unique best view", title="best next view")
     for name, share in found.unique.items():
         table.add_row(name, f"{share:.1%}")
-    console.print(table)
+    print_table(table)
     spread = _table("per sample", "p0", "p5", "p50", "p95", "p100")
     spread.add_row("best gain share", *("-" if v is None else f"{v:.3f}" for v in found.best_gain_share.values()))
-    console.print(spread)
+    print_table(spread)
     width = 1.0 / len(found.best_gain_histogram)
     bins = "  ".join(f"{i * width:.1f}:{n}" for i, n in enumerate(found.best_gain_histogram))
     for line in textwrap.wrap(f"best gain share histogram (bin start:samples): {bins}", 80):

@@ -29,9 +29,10 @@ from datagen.errors import ConfigError, OutputError
 from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.setcover import TIE_BREAKS
 from datagen.pipeline.task import TaskResult, TaskSets, label_task, labelled_samples, next_view_labels
-from schemas.config import LABEL_OBJECTIVES, GenerationConfig, MissingConfigFile
+from schemas.config import GenerationConfig, MissingConfigFile
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
+from schemas.objectives import OBJECTIVES
 from schemas.shard import GT_KEYS, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from schemas.version import SCHEMA_VERSION
 from storage import (
@@ -292,8 +293,8 @@ def _with_labels(
     if tie_break not in TIE_BREAKS:
         raise ConfigError(f"--tie-break {tie_break!r} is not one of {', '.join(TIE_BREAKS)}")
     objective = (changes or {}).get("label_objective")
-    if objective is not None and objective not in LABEL_OBJECTIVES:
-        raise ConfigError(f"--objective {objective!r} is not one of {', '.join(LABEL_OBJECTIVES)}")
+    if objective is not None and objective not in OBJECTIVES:
+        raise ConfigError(f"--objective {objective!r} is not one of {', '.join(OBJECTIVES)}")
     update = {"alpha": alpha, "label_tie_break": tie_break, **(changes or {})}
     try:
         return GenerationConfig.model_validate({**config.model_dump(), **update})

@@ -30,7 +30,7 @@ from scipy.spatial import cKDTree
 
 from datagen.errors import InvalidArgument
 from datagen.evaluate.path import path_matrix, visit_order
-from datagen.evaluate.planners import Plan, Planner
+from datagen.evaluate.protocol import Plan, Planner
 from datagen.evaluate.scene import Scene
 from datagen.evaluate.situation import Situation
 
@@ -92,6 +92,9 @@ class Episode:
     count_curve: tuple[float, ...] | None = None
     """Coverage (fraction) of the initial view plus the planner's answer for c new views, c = 0..n-1, where
     the planner answers for any count (None otherwise); no budget applies."""
+    ordered: bool = False
+    """Whether the planner decided the order of its views (a step-by-step player): then its coverage
+    after its first c views is its answer for c views (`datagen.evaluate.margins`)."""
 
     @property
     def coverage(self) -> float:
@@ -221,6 +224,7 @@ def run_episode(planner: Planner, situation: Situation, budget: Budget = Budget(
         input_seconds=situation.input_seconds if planner.uses_refinement else 0.0,
         chamfer_mm=chamfer_mm(scene.observed_points(order), scene.scan.ground_truth.points) if measure else math.nan,
         count_curve=_count_curve(scene, situation.initial_view, plan) if measure else None,
+        ordered=plan.ordered,
     )
 
 

@@ -34,10 +34,9 @@ training package is one such plugin: ``osvp:FILE`` loads an `osvp train` checkpo
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from importlib.metadata import EntryPoint, entry_points
-from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -46,19 +45,36 @@ from pydantic import ValidationError
 from datagen.errors import DatagenError, PlannerError
 from datagen.evaluate.fixed import FIXED_OPTION, FixedPlans, spread_views
 from datagen.evaluate.grids import SceneGrids, empty_log_odds, inserted, occupancy_grid
+from datagen.evaluate.protocol import Plan, Planner, one_line
 from datagen.evaluate.situation import Situation, needs_refinement
 from datagen.pipeline.setcover import mask_to_views
 from schemas.config import GenerationConfig
+from schemas.objectives import OBJECTIVES, UnknownObjective, objective_named
 from schemas.planning import PLANNER_ENTRY_POINTS, DecodingScorer, NextViewScorer, ScorerFactory, ViewScorer
 
 CHOICE_THRESHOLD = 0.5
 """A view is chosen when its probability exceeds this (the paper's rule)."""
 
-ORACLE_SETTINGS = {"alpha": "alpha", "objective": "label_objective", "budget": "label_budget", "tau": "label_tau"}
-"""``oracle:SETTING=V``: the label setting each name changes."""
-SETTING_TYPES: dict[str, type] = {"alpha": int, "budget": int, "tau": float}
-OBJECTIVE_OF_SETTING = {"budget": "max_coverage", "tau": "partial_cover", "alpha": "cover"}
-"""The objective a setting implies when ``objective`` is not named."""
+
+def oracle_setting_fields() -> dict[str, str]:
+    """``oracle:SETTING=V``: the config field each setting name changes (``objective``, and each
+    registered objective's `Objective.oracle_settings`)."""
+    fields = {"objective": "label_objective"}
+    for objective in OBJECTIVES.values():
+        fields.update(objective.oracle_settings)
+    return fields
+
+
+def implied_objectives(names: Iterable[str]) -> set[str]:
+    """The objectives the settings imply when ``objective`` is not named."""
+    owners = {setting: objective.name for objective in OBJECTIVES.values() for setting in objective.oracle_settings}
+    return {owners[name] for name in names if name in owners}
+
+
+def _setting_type(field: str) -> type:
+    """int, float or str: the type of the config field a setting changes."""
+    annotation = GenerationConfig.model_fields[field].annotation
+    return int if annotation is int else float if annotation is float else str
 
 
 @dataclass(frozen=True)
@@ -74,27 +90,6 @@ class PlannerContext:
 
 MATCH_PREFIX = "match="
 """``random:match=SPEC``: the argument that names the planner whose view count a random planner takes."""
-
-
-@dataclass(frozen=True)
-class Plan:
-    """A planner's answer: the views to take after the initial one."""
-
-    views: tuple[int, ...]
-    ordered: bool = False
-    """True: visit in this order; False: a one-shot set, ordered by the shortest open path."""
-    probabilities: npt.NDArray[np.float64] | None = None
-    at_count: Callable[[int], tuple[int, ...]] | None = field(default=None, compare=False)
-    """The planner's answer had it been asked for exactly c new views (None: it only answers its own
-    count): gives each run its coverage at every view count, and the views it needs to reach a share."""
-
-
-class Planner(Protocol):
-    name: str
-    uses_refinement: bool
-    """Whether the planner reads the refined input or the generator's label (the scene must be refined)."""
-
-    def plan(self, situation: Situation) -> Plan: ...
 
 
 class OraclePlanner:
@@ -125,31 +120,35 @@ def oracle_settings(spec: str, argument: str) -> dict[str, object]:
     changes: dict[str, object] = {}
     for part in argument.split(","):
         name, equals, value = part.strip().partition("=")
-        if not equals or name not in ORACLE_SETTINGS or not value:
-            choices = ", ".join(f"{n}=V" for n in ORACLE_SETTINGS)
+        fields = oracle_setting_fields()
+        if not equals or name not in fields or not value:
+            choices = ", ".join(f"{n}=V" for n in fields)
             raise PlannerError(f"planner {spec!r}: give label settings as {choices}, separated by commas")
         try:
-            changes[name] = SETTING_TYPES.get(name, str)(value)
+            changes[name] = _setting_type(fields[name])(value)
         except ValueError:
-            kind = "whole number" if SETTING_TYPES[name] is int else "number"
+            kind = "whole number" if _setting_type(fields[name]) is int else "number"
             raise PlannerError(f"planner {spec!r}: {name}={value} is not a {kind}") from None
     return changes
 
 
 def oracle_config(config: GenerationConfig, changes: dict[str, object]) -> GenerationConfig:
     """``config`` with the oracle's label setting changes (a setting implies its objective)."""
-    update = {ORACLE_SETTINGS[name]: value for name, value in changes.items()}
+    fields = oracle_setting_fields()
+    update = {fields[name]: value for name, value in changes.items()}
     if "objective" not in changes:
-        implied = {OBJECTIVE_OF_SETTING[name] for name in changes}
+        implied = implied_objectives(changes)
         if len(implied) == 1:
             update["label_objective"] = implied.pop()
-    if update.get("label_objective", config.label_objective) != "cover":
-        update["label_tie_break"] = "index"
     try:
+        if not objective_named(str(update.get("label_objective", config.label_objective))).ranks_ties:
+            update["label_tie_break"] = "index"
         return GenerationConfig.model_validate({**config.model_dump(), **update})
+    except UnknownObjective as exc:
+        raise PlannerError(f"oracle setting objective: {exc}") from None
     except ValidationError as exc:
         first = exc.errors()[0]
-        setting = next((n for n, f in ORACLE_SETTINGS.items() if first["loc"] and f == first["loc"][0]), "oracle")
+        setting = next((n for n, f in fields.items() if first["loc"] and f == first["loc"][0]), "oracle")
         raise PlannerError(f"oracle setting {setting}: {first['msg']}") from None
 
 
@@ -403,13 +402,6 @@ def _build_scorer(plugin: EntryPoint, argument: str, spec: str) -> ViewScorer | 
             "next_view_scores(observation)"
         )
     return scorer
-
-
-def one_line(exc: BaseException, named: bool = True) -> str:
-    """The first line of an exception's message, after its type's name unless ``named`` is False."""
-    text = str(exc).strip()
-    line = text.splitlines()[0] if text else ""
-    return f"{type(exc).__name__}: {line}" if named or not line else line
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from datagen.errors import PlannerError
 from datagen.evaluate.grids import SceneGrids, empty_log_odds, inserted, occupancy_grid
-from datagen.evaluate.planners import Plan, one_line
+from datagen.evaluate.protocol import Plan, one_line
 from datagen.evaluate.scene import Scene
 from datagen.evaluate.situation import Situation
 from schemas.planning import NextViewObservation, NextViewScorer

@@ -33,7 +33,7 @@ LABEL_FIELDS = ("alpha", "label_objective", "label_budget", "label_tau", "label_
 def needs_refinement(config: GenerationConfig) -> bool:
     """Whether labels under ``config`` read the refined views (the paper's cover objective does; the
     visibility objectives read only what each view sees)."""
-    return config.label_objective == "cover"
+    return config.objective.needs_refinement
 
 
 @dataclass(frozen=True)

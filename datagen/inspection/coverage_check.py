@@ -79,21 +79,8 @@ class VisibilityRows:
         return sum(1 << v for v, x in fixed.items() if x)
 
     def expected(self, case: int) -> tuple[int, int]:
-        """(size, label) the objective calls for in case S."""
-        seen = self.seen(case)
-        free = self.num_views - case.bit_count()
-        if self.config.label_objective == "max_coverage":
-            top = min(self.config.label_budget, free)
-            best = self._best(case, top)
-            if best == seen:
-                return 0, 0
-            size = next(s for s in range(1, top + 1) if self._best(case, s) == best)
-            return size, self._first(case, size, best)
-        need = self.config.tau_keys(self.reference)
-        if seen >= need:
-            return 0, 0
-        size = next(s for s in range(1, free + 1) if self._best(case, s) >= need)
-        return size, self._first(case, size, self._best(case, size))
+        """(size, label) the objective calls for in case S (each visibility objective's rows say)."""
+        raise NotImplementedError
 
     def judge(self, case: int, label: int) -> Iterator[tuple[str, str]]:
         """(kind, text) for each rule the label breaks; nothing when it is the expected label."""
@@ -180,3 +167,44 @@ def _highs_max_coverage(rows: VisibilityRows, case: int, size: int, fixed: dict[
             raise cover_check.SolverFailure(f"HiGHS: {solver.modelStatusToString(status)}")
         value = solver.getInfo().objective_function_value
     return rows.seen(case) + round(value)
+
+
+class BudgetRows(VisibilityRows):
+    """``max_coverage``: the fewest views, at most ``label_budget``, that see the most unseen keys."""
+
+    def expected(self, case: int) -> tuple[int, int]:
+        seen = self.seen(case)
+        top = min(self.config.label_budget, self.num_views - case.bit_count())
+        best = self._best(case, top)
+        if best == seen:
+            return 0, 0
+        size = next(s for s in range(1, top + 1) if self._best(case, s) == best)
+        return size, self._first(case, size, best)
+
+
+class TauRows(VisibilityRows):
+    """``partial_cover``: the fewest views that bring what is seen to ``label_tau`` of the reference."""
+
+    def expected(self, case: int) -> tuple[int, int]:
+        need = self.config.tau_keys(self.reference)
+        if self.seen(case) >= need:
+            return 0, 0
+        free = self.num_views - case.bit_count()
+        size = next(s for s in range(1, free + 1) if self._best(case, s) >= need)
+        return size, self._first(case, size, self._best(case, size))
+
+
+def budget_checker(stored: cover_check.StoredSets) -> BudgetRows:
+    """The ``max_coverage`` objective's checker (the reference: every key some view sees)."""
+    return BudgetRows(cover_check.full_masks(stored.keys, stored.offsets, 1), _config(stored), stored.search_limit)
+
+
+def tau_checker(stored: cover_check.StoredSets) -> TauRows:
+    """The ``partial_cover`` objective's checker (the reference: every key some view sees)."""
+    return TauRows(cover_check.full_masks(stored.keys, stored.offsets, 1), _config(stored), stored.search_limit)
+
+
+def _config(stored: cover_check.StoredSets) -> GenerationConfig:
+    if stored.config is None:
+        raise ValueError("a visibility objective's labels are checked against the dataset's config")
+    return stored.config

@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import highspy
 import numpy as np
@@ -36,6 +36,7 @@ import numpy.typing as npt
 from datagen.pipeline import setcover
 from schemas.config import MAX_VIEWS, GenerationConfig
 from schemas.index import CommitRecord
+from schemas.objectives import objective_named
 from schemas.shard import COVERS, LABEL_COLUMN, MASK_DTYPE, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
 from storage import (
     SAMPLED_ROWS_PER_SHARD,
@@ -48,9 +49,6 @@ from storage import (
 )
 from storage.index import index_rows_of
 from storage.manifest import task_records
-
-if TYPE_CHECKING:
-    from datagen.inspection.coverage_check import VisibilityRows
 
 MaskArray = npt.NDArray[np.uint64]
 
@@ -335,22 +333,17 @@ def _check_reader(
     """The label problems of an open shard and how many labels were checked (``config``: the dataset's,
     for its label objective; None reads as the paper's cover objective)."""
     where = record.shard
-    visibility = config is not None and config.label_objective != "cover"
+    objective = config.objective if config is not None else objective_named("cover")
     try:
         masks = shard.array(MASKS)
-        refined, offsets = _task_sets(shard, "visible" if visibility else "refined", num_views)
+        keys, offsets = _task_sets(shard, objective.judged_on, num_views)
     except Exception as exc:  # storage.validate names the damage; here it only stops the label checks
         line = f"{where}: cannot check labels ({_why(exc)})"
         return [LabelProblem(where, None, UNREADABLE, line)], 0
     if masks.dtype != MASK_DTYPE or masks.ndim != 2 or masks.shape[1] != 2:
         return [LabelProblem(where, None, UNREADABLE, f"{where}: cannot check labels (masks {masks.shape})")], 0
-    cover: TaskRows | VisibilityRows
-    if config is not None and visibility:
-        from datagen.inspection.coverage_check import VisibilityRows
-
-        cover = VisibilityRows(full_masks(refined, offsets, 1), config, search_limit)
-    else:
-        cover = TaskRows.from_masks(full_masks(refined, offsets, alpha), search_limit, tie_break, num_views)
+    stored = StoredSets(keys, offsets, alpha, num_views, search_limit, tie_break, config)
+    cover: LabelChecker = objective.load_checker()(stored)
     listed = _listed_covers(shard, masks.shape[0])
     count = masks.shape[0]
     rows = np.arange(count) if full else np.sort(rng.permutation(count)[:SAMPLED_ROWS_PER_SHARD])
@@ -365,10 +358,10 @@ def _check_reader(
             text = f"the index says label {views_text(indexed.label)}, the shard holds {views_text(label)}"
             problems.append(LabelProblem(where, row, INDEX_MISMATCH, f"{name}: {text}"))
         if listed is not None and not judged and indexed is not None and indexed.ambiguity is not None:
-            stored = Ambiguity(listed[row], *indexed.ambiguity)
+            ambiguity = Ambiguity(listed[row], *indexed.ambiguity)
             problems.extend(
                 LabelProblem(where, row, kind, f"{name}: {text}")
-                for kind, text in cover.judge_covers(case, label, stored)
+                for kind, text in cover.judge_covers(case, label, ambiguity)
             )
     return problems, int(rows.size)
 
@@ -425,6 +418,38 @@ def full_masks(keys: npt.NDArray[np.integer], offsets: npt.NDArray[np.int64], al
 # ---------------------------------------------------------------------------------------------------------
 # one task's rows and one label
 # ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class StoredSets:
+    """One shard's stored per-view key sets of the kind its objective is judged on (P_i or V_i), and
+    what a checker of its labels needs besides."""
+
+    keys: npt.NDArray[np.int16]
+    offsets: npt.NDArray[np.int64]
+    alpha: int
+    num_views: int
+    search_limit: int
+    tie_break: setcover.TieBreak
+    config: GenerationConfig | None
+
+
+class LabelChecker(Protocol):
+    """An objective's independent check of stored labels (`schemas.objectives.Objective.checker`)."""
+
+    def judge(self, case: int, label: int) -> Iterator[tuple[str, str]]:
+        """(kind, text) for each rule the label breaks."""
+        ...
+
+    def judge_covers(self, case: int, label: int, stored: Ambiguity) -> Iterator[tuple[str, str]]:
+        """(kind, text) where the stored ties, their count or support are not what exists."""
+        ...
+
+
+def cover_checker(stored: StoredSets) -> TaskRows:
+    """The ``cover`` objective's checker: P_full's rows, every minimum cover enumerated."""
+    masks = full_masks(stored.keys, stored.offsets, stored.alpha)
+    return TaskRows.from_masks(masks, stored.search_limit, stored.tie_break, stored.num_views)
 
 
 class TaskRows:

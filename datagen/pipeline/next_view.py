@@ -22,8 +22,7 @@ import numpy.typing as npt
 
 from datagen.pipeline.coverage import view_masks
 from datagen.pipeline.setcover import MaskArray
-from storage.gains import GainArray, MaskCounts
-from storage.samples import best_views
+from storage.gains import GainArray, MaskCounts, best_views
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,9 @@
-"""Label objectives: what the label of a case is (docs/pipeline.md sections 7 and 7.5), one registry.
+"""The generator side of the label objectives (docs/pipeline.md sections 7 and 7.5): their labellers.
 
-Every objective turns one task's stored sets into a `CaseLabeller`, which labels any case S with a
-`CoverResult` (the label mask, how it was proven, and the sets as good as it). Generation, `relabel`,
-`datagen evaluate`'s oracle and the checks all build labellers here, so a new objective is one
-decorated factory:
+Every objective (registered once in `schemas.objectives`, which names its labeller here) turns one
+task's stored sets into a `CaseLabeller`, which labels any case S with a `CoverResult` (the label
+mask, how it was proven, and the sets as good as it). Generation, `relabel`, `datagen evaluate`'s
+oracle and the checks all build labellers through `task_labeller`:
 
 - ``cover`` (the paper's): the fewest views covering the keys of P_full that S misses, on the refined
   coverage sets C_i (`datagen.pipeline.setcover`);
@@ -43,29 +43,12 @@ LabellerFactory = Callable[[tuple[PackedKeys, ...], Coverage | None, GenerationC
 """(visibility sets V_i, P_full's coverage table (None where the objective does not read it: the refined
 views need not exist), config, whether to list the label's ties) -> labeller."""
 
-LABELLERS: dict[str, LabellerFactory] = {}
-"""The label objectives by name (`GenerationConfig.label_objective`)."""
-
-
-def register_objective(name: str) -> Callable[[LabellerFactory], LabellerFactory]:
-    """Register a labeller factory under ``name``."""
-
-    def register(factory: LabellerFactory) -> LabellerFactory:
-        LABELLERS[name] = factory
-        return factory
-
-    return register
-
 
 def task_labeller(
     visible: tuple[PackedKeys, ...], coverage: Coverage | None, config: GenerationConfig, list_covers: bool = True
 ) -> CaseLabeller:
     """The labeller of ``config.label_objective`` for one task."""
-    try:
-        factory = LABELLERS[config.label_objective]
-    except KeyError:
-        known = ", ".join(sorted(LABELLERS))
-        raise LabelError(f"unknown label objective {config.label_objective!r}; choose one of {known}") from None
+    factory: LabellerFactory = config.objective.load_labeller()
     return factory(visible, coverage, config, list_covers)
 
 
@@ -76,8 +59,7 @@ def cover_solver(full_masks: np.ndarray, config: GenerationConfig, list_covers: 
     return TaskCover(full_masks, config.num_views, config.solver_time_limit, config.label_tie_break, cap)
 
 
-@register_objective("cover")
-def _cover(
+def cover_labeller(
     visible: tuple[PackedKeys, ...], coverage: Coverage | None, config: GenerationConfig, list_covers: bool
 ) -> CaseLabeller:
     if coverage is None:
@@ -140,16 +122,14 @@ class VisibilityLabeller:
         )
 
 
-@register_objective("max_coverage")
-def _max_coverage(
+def max_coverage_labeller(
     visible: tuple[PackedKeys, ...], coverage: Coverage | None, config: GenerationConfig, list_covers: bool
 ) -> CaseLabeller:
     budget = config.label_budget
     return VisibilityLabeller(visible, config, list_covers, lambda search, reference, seen: budget)
 
 
-@register_objective("partial_cover")
-def _partial_cover(
+def partial_cover_labeller(
     visible: tuple[PackedKeys, ...], coverage: Coverage | None, config: GenerationConfig, list_covers: bool
 ) -> CaseLabeller:
     def views_needed(search: CoverageSearch, reference: int, seen: int) -> int:

@@ -232,8 +232,8 @@ def label_task(
     with timed(clock, "coverage"):
         coverage = coverage_table(sets.refined, config.alpha)
     with timed(clock, "labels"):
-        cover = cover_solver(coverage.masks, config)
-        labeller = cover if config.label_objective == "cover" else task_labeller(sets.visible, coverage, config)
+        labeller = task_labeller(sets.visible, coverage, config)
+        cover = labeller if isinstance(labeller, TaskCover) else cover_solver(coverage.masks, config)
         labels, failures = label_cases(labeller, cases, threads)
     return TaskLabels(coverage, cover, labels, failures)
 

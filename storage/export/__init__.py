@@ -10,20 +10,11 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from storage.export.common import (
-    EMPTY_LABEL,
-    NO_NEXT_VIEW,
-    NO_POINTS,
-    PROVENANCE_JSON,
-    PROVENANCE_MD,
-    ROOT_FILES,
-    Export,
-    Layout,
-    Progress,
-    sample_rng,
-)
+from storage.export.base import Export, Layout, Progress
+from storage.export.options import EMPTY_LABEL, NO_NEXT_VIEW, NO_POINTS, PROVENANCE_JSON, PROVENANCE_MD, ROOT_FILES
 from storage.export.registry import LAYOUTS, check_layout, layout_named
 from storage.export.run import export
+from storage.export.streams import sample_rng
 
 __all__ = [
     "EMPTY_LABEL",

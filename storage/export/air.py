@@ -19,18 +19,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
-from storage.export.common import (
-    EMPTY_LABEL,
-    NO_POINTS,
-    Layout,
-    Place,
-    Run,
-    Writer,
-    ids_text,
-    sample_rng,
-    state_text,
-    write_text,
-)
+from storage.export.base import Layout, Place, Run, Writer
+from storage.export.options import EMPTY_LABEL, NO_POINTS
+from storage.export.publish import write_text
+from storage.export.streams import sample_rng
+from storage.export.text import ids_text, state_text
 from storage.reader import Dataset
 
 AUTHORS_CODE = "psc0628/AIR-OSVP @ c233bbf, poco_pointr/pointrVP/{COSC_Dataset.py,train.py}"

@@ -17,7 +17,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from storage.export.common import SPLITS, Place, Run, make_folder, write_text
+from storage.export.base import Place, Run
+from storage.export.options import SPLITS
+from storage.export.publish import make_folder, write_text
 from storage.location import StorageError
 
 ARRAY_ROWS = "array_rows.csv"

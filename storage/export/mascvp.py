@@ -17,22 +17,11 @@ from typing import Any, ClassVar
 import numpy as np
 
 from storage.export.arrays import ARRAY_ROWS, ArrayFile, SplitArrays
-from storage.export.common import (
-    AUTHORS_VIEWS,
-    EMPTY_LABEL,
-    TEST,
-    TRAIN,
-    Layout,
-    Place,
-    Run,
-    Writer,
-    bits32,
-    cpp_text,
-    ids_text,
-    state_text,
-    write_text,
-)
+from storage.export.base import Layout, Place, Run, Writer
 from storage.export.grids import Grids, grid_facts, grid_line
+from storage.export.options import AUTHORS_VIEWS, EMPTY_LABEL, TEST, TRAIN
+from storage.export.publish import write_text
+from storage.export.text import bits32, cpp_text, ids_text, state_text
 from storage.occupancy import GRID_CELLS
 from storage.reader import Dataset
 

@@ -15,18 +15,11 @@ from typing import Any, ClassVar
 import numpy as np
 
 from storage.export.arrays import ARRAY_ROWS, ArrayFile, SplitArrays
-from storage.export.common import (
-    NO_NEXT_VIEW,
-    TEST,
-    TRAIN,
-    Layout,
-    Place,
-    Run,
-    Writer,
-    cpp_text,
-    write_text,
-)
+from storage.export.base import Layout, Place, Run, Writer
 from storage.export.grids import Grids, grid_facts, grid_line
+from storage.export.options import NO_NEXT_VIEW, TEST, TRAIN
+from storage.export.publish import write_text
+from storage.export.text import cpp_text
 from storage.occupancy import GRID_CELLS
 from storage.reader import Dataset
 

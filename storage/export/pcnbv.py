@@ -19,21 +19,11 @@ import numpy.typing as npt
 
 from schemas.shard import GT_KEYS
 from storage.export.arrays import ARRAY_ROWS, ArrayFile, SplitArrays
-from storage.export.common import (
-    AUTHORS_VIEWS,
-    NO_POINTS,
-    Layout,
-    Place,
-    Run,
-    Writer,
-    bits32,
-    cpp_text,
-    draw,
-    sample_rng,
-    state_text,
-    task_rng,
-    write_text,
-)
+from storage.export.base import Layout, Place, Run, Writer
+from storage.export.options import AUTHORS_VIEWS, NO_POINTS
+from storage.export.publish import write_text
+from storage.export.streams import draw, sample_rng, task_rng
+from storage.export.text import bits32, cpp_text, state_text
 from storage.reader import Dataset
 
 AUTHORS_CODE = (

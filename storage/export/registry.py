@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from storage.export.air import AIR
-from storage.export.common import Layout
+from storage.export.base import Layout
 from storage.export.mascvp import MASCVP
 from storage.export.nbvnet import NBVNET
 from storage.export.pcnbv import PCNBV

@@ -19,7 +19,11 @@ import numpy.typing as npt
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from storage.export.common import (
+from schemas.dataset import CARD_FILE
+from storage.export.base import Export, Layout, Place, Progress, Run, Writer
+from storage.export.checks import check_output
+from storage.export.folders import object_folders, rotation_folders
+from storage.export.options import (
     PHRASES,
     PROVENANCE_JSON,
     PROVENANCE_MD,
@@ -28,30 +32,14 @@ from storage.export.common import (
     TEST_SPLIT,
     TRAIN,
     TRAIN_SPLIT,
-    Export,
-    Layout,
     Options,
-    Place,
-    Progress,
-    Run,
-    Writer,
-    check_output,
-    dataset_facts,
-    frame_facts,
-    make_folder,
-    make_staging,
-    markdown,
-    object_folders,
-    publish,
-    rotation_facts,
-    rotation_folders,
-    view_facts,
-    write_text,
 )
+from storage.export.provenance import dataset_facts, frame_facts, markdown, rotation_facts, view_facts
+from storage.export.publish import make_folder, make_staging, publish, write_text
 from storage.export.registry import layout_named
 from storage.location import StorageError
 from storage.reader import Dataset, open_dataset
-from storage.samples import held_out_objects
+from storage.splits import held_out_objects
 
 
 def export(
@@ -101,6 +89,8 @@ def export(
         writer.finish()
         provenance = _provenance(chosen, dataset, options, plan, rotations, writer.lines(), writer.facts())
         _write_text_files(staging, target, chosen, plan, provenance)
+        if dataset.location.exists(CARD_FILE):  # the dataset card travels with the data
+            write_text(staging / CARD_FILE, dataset.location.read_bytes(CARD_FILE).decode(), target)
         publish(staging, target)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)

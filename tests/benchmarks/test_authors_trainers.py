@@ -100,3 +100,29 @@ def test_sha256s_see_an_edit_and_skip_links(driver: ModuleType, tmp_path: Path) 
     assert driver.sha256s(tmp_path)["a.py"] != first["a.py"]
     assert set(driver.TRAINERS) >= {"nbv-net-master", "ma_scvp", "sc-net", "PC-NBV_pytorch"}
     assert {t.layout for t in driver.TRAINERS.values()} == {"mascvp", "nbvnet", "pcnbv"}
+
+
+def test_the_harness_takes_its_paths_from_arguments_and_deletes_nothing(
+    driver: ModuleType, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No path of one machine by default, a --work folder that holds anything refused (never emptied),
+    and an existing report written over only with --replace (issue 42)."""
+    with pytest.raises(SystemExit):
+        driver.main([])
+    missing = capsys.readouterr().err
+    assert "--authors" in missing and "--work" in missing
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "keep.txt").write_text("mine\n")
+    with pytest.raises(SystemExit):
+        driver.main(["--authors", str(tmp_path), "--work", str(used)])
+    assert "is not a new or empty folder" in capsys.readouterr().err
+    assert (used / "keep.txt").read_text() == "mine\n"
+    committed = tmp_path / "result.md"
+    committed.write_text("committed\n")
+    with pytest.raises(SystemExit):
+        driver.main(["--authors", str(tmp_path), "--work", str(tmp_path / "new"), "--out", str(committed)])
+    assert "exists; give another --out, or --replace" in capsys.readouterr().err
+    assert committed.read_text() == "committed\n"
+    with pytest.raises(SystemExit, match="no Networks_pytorch folder"):  # past the paths: the clone is checked
+        driver.main(["--authors", str(tmp_path), "--work", str(tmp_path / "new"), "--out", str(committed), "--replace"])

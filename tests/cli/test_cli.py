@@ -112,8 +112,10 @@ def test_objects_builtins_lists_every_builtin(runner: CliRunner) -> None:
     assert result.exit_code == 0, result.output
     names = builtins.builtin_names()
     assert len(names) >= 5
-    rows = [line.split("│")[1].strip() for line in result.stdout.splitlines() if line.count("│") >= 3]
-    assert sorted(rows) == sorted(names)
+    lines = result.stdout.splitlines()  # off a terminal: the title, then tab-separated whole lines
+    assert lines[:2] == ["built-in shapes", "name\tfamily\tdescription"]
+    rows = [line.split("\t")[0] for line in lines[2:]]
+    assert sorted(rows) == sorted(names) and all(line.count("\t") == 2 for line in lines[1:])
     for name in names:
         assert builtins.get_builtin(name).description in result.stdout
 
@@ -223,8 +225,9 @@ def test_scan_one_builtin_rotation(runner: CliRunner, tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     out = result.stdout
     assert "targets imaging, 32 views" in out
-    rows = [line.split("│")[1:-1] for line in out.splitlines() if line.count("│") >= 8]
-    (row,) = [cells for cells in rows if cells[0].strip() == FAST_BUILTIN]
+    rows = [line.split("\t") for line in out.splitlines() if line.count("\t") == 7]
+    assert rows[0] == ["object", "rot", "P_gt", "union V", "keys/view", "only-1-view", "rays", "s"]
+    (row,) = [cells for cells in rows if cells[0] == FAST_BUILTIN]
     values = [cell.strip() for cell in row]
     assert values[1] == "0"  # the rotation
     p_gt, union, per_view, rays = (int(values[i]) for i in (2, 3, 4, 6))

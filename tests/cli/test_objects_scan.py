@@ -252,3 +252,12 @@ def test_objects_show_warns_of_a_flat_mesh(odd_folder: Path, tmp_path: Path) -> 
     box, sheet = (prepare_object(spec, config) for spec in specs)
     assert box.thinness == pytest.approx(0.06 / 0.1 * 0.8, rel=0.5) and box.flat_warning() is None
     assert sheet.thinness == 0.0
+
+
+def test_scan_help_no_longer_says_submit_does_not_exist() -> None:
+    """`datagen scan --help` said "until ``datagen submit`` exists" long after it did (issue 42)."""
+    result = CliRunner().invoke(app, ["scan", "--help"])
+    assert result.exit_code == 0
+    text = " ".join(result.stdout.split())
+    assert "until" not in text and "exists" not in text
+    assert "before a `datagen submit`" in text or "before a datagen submit" in text

@@ -45,10 +45,10 @@ from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
 from schemas.version import SCHEMA_VERSION
 from storage import StorageError, committed_tasks, open_dataset, open_location, read_failures
 from storage.covers import mask_views
+from storage.label_judges import visibility_judge
 from storage.manifest import mark_adding
 from storage.shards import KEY_CHUNK_ROWS, ShardReader
 from storage.validate import SAMPLED_ROWS_PER_SHARD
-from storage.visibility import VisibilityJudge
 from storage.writer import commit_path, fragment_path, shard_path
 
 runner = CliRunner()
@@ -763,7 +763,7 @@ def test_validate_all_finds_a_visibility_label_that_is_not_the_best(tmp_path: Pa
     write_label(root, record, row, worse)
     result = validate_all(root)
     name = sample_id(record.task_id, case)
-    judge = VisibilityJudge([pack_keys(k) for k in per_view_keys(root, record, "visible")], fx.config())
+    judge = visibility_judge([pack_keys(k) for k in per_view_keys(root, record, "visible")], fx.config())
     seen_worse, seen_label = judge.seen(case | worse), judge.seen(case | label)
     assert seen_worse < seen_label
     assert problem_lines(result) == [

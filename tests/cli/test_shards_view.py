@@ -59,6 +59,15 @@ def assert_fits_80_columns(text: str) -> None:
     assert "…" not in text, text  # nothing truncated
 
 
+def assert_whole_lines(text: str) -> None:
+    """Off a terminal every table is tab-separated lines: no cell wrapped onto a line of its own, none
+    cut (issue 42: ids, names and hashes are copied from a pipe whole)."""
+    lines = text.splitlines()
+    assert lines and "…" not in text, text
+    assert not any(line.startswith("\t") for line in lines), text  # a wrapped cell's rest: an empty first cell
+    assert not any("│" in line or "─" in line for line in lines), text  # no box drawing, no rich table
+
+
 def assert_one_error_line(result: Any, fragment: str) -> None:
     assert result.exit_code == 2, result.output
     assert "Traceback" not in result.output
@@ -210,7 +219,7 @@ def test_listing_counts_exact_bytes_and_skips_orphans(url: str, engine_dataset: 
 
 def field(output: str, name: str) -> str:
     for line in output.splitlines():
-        if line.startswith(name + " "):
+        if line.startswith((name + " ", name + "\t")):
             return line[len(name) :].strip()
     raise AssertionError(f"no {name!r} line in:\n{output}")
 
@@ -233,7 +242,7 @@ def test_show_prints_the_stored_views_and_counts(runner: CliRunner, url: str) ->
         view_state, label = dataset.masks(row)
         sample_id = dataset.index.column("sample_id")[row].as_py()
         result = invoke(runner, "show", url, str(row))
-        assert_fits_80_columns(result.stdout)
+        assert_whole_lines(result.stdout)
         out = result.stdout
         assert field(out, "sample").startswith(f"{sample_id} (row {row})")
         inputs, outputs = listed_views(field(out, "input views")), listed_views(field(out, "label views"))
@@ -246,6 +255,7 @@ def test_show_prints_the_stored_views_and_counts(runner: CliRunner, url: str) ->
         points = re.findall(r"\d+", field(out, "points"))
         assert [int(p) for p in points] == [len(dataset.keys(row, "points")), len(dataset.keys(row, "observed"))]
         meta = dataset.index.slice(row, 1).to_pylist()[0]
+        assert f"config\t{meta['config_hash'][:16]}, schema" in out  # the hash whole, on its field's line
         assert field(out, "solver").startswith(f"{meta['solver_status']}, proof {meta['solver_proof']}")
         assert field(out, "object").startswith(meta["object_name"])
         by_id = invoke(runner, "show", url, sample_id)
@@ -350,7 +360,7 @@ def test_stats_tables_show_the_same_numbers(runner: CliRunner, url: str, engine_
     dataset = open_dataset(url)
     want = expected_stats(engine_dataset, dataset)
     out = invoke(runner, "stats", url).stdout
-    assert_fits_80_columns(out)
+    assert_whole_lines(out)
     assert out.startswith(
         f"{want['samples']} samples in 6 committed tasks, 2 failed; {want['empty_labels']} empty labels"
     )

@@ -141,10 +141,10 @@ def test_an_oracle_labels_under_the_settings_it_names(spec: str, objective: str,
 @pytest.mark.parametrize(
     ("spec", "message"),
     [
-        ("oracle:depth=3", "give label settings as alpha=V, objective=V, budget=V, tau=V"),
+        ("oracle:depth=3", "give label settings as objective=V, alpha=V, budget=V, tau=V"),
         ("oracle:budget=two", "budget=two is not a whole number"),
         ("oracle:tau=1.5", "oracle setting tau: Input should be less than or equal to 1"),
-        ("oracle:objective=best", "oracle setting objective: Input should be 'cover', 'max_coverage' or"),
+        ("oracle:objective=best", "oracle setting objective: unknown label objective 'best'; choose one of cover"),
     ],
 )
 def test_a_bad_oracle_setting_is_one_planner_error(spec: str, message: str) -> None:

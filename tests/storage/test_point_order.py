@@ -28,7 +28,7 @@ from schemas.shard import keys_array, offsets_array, point_order
 from storage import ShardReader, StorageError, open_dataset, validate
 from storage.codec import COMPRESSORS, RowTaker
 from storage.memory import load_memory
-from storage.samples import gather_clouds
+from storage.resampling import gather_clouds
 from storage.shards import POINT_CHUNK_ROWS
 from storage.stream import ShardStream
 from storage.torch import OSVPDataset

@@ -20,7 +20,7 @@ from support import storage as fx
 from storage import ShardReader, StorageError, open_dataset
 from storage.covers import cover_marginals, listed_marginals
 from storage.group_files import local_files
-from storage.samples import cloud_positions, key_centres, many_cloud_positions, resample_keys, resample_many_keys
+from storage.resampling import cloud_positions, key_centres, many_cloud_positions, resample_keys, resample_many_keys
 from storage.seeding import StreamGenerator, pcg64_states
 from storage.writer import shard_path
 

@@ -1,4 +1,5 @@
-"""The sample contract (`storage.samples`) against independent truth, and every read path built on it
+"""The sample contract (`storage.batch`, `storage.bits`, `storage.resampling`, `storage.splits`,
+`storage.sample_fields`) against independent truth, and every read path built on it
 (`storage.torch.OSVPDataset`, `storage.memory`, osvp's `SampleBank`) giving identical tensors.
 
 Truth here is hand-computed centres, Python's own integer bit operations, numpy's generators called
@@ -20,25 +21,12 @@ from datagen.pipeline.keys import key_centres as pipeline_centres
 from schemas.shard import LABEL_COLUMN, MASKS
 from schemas.version import SCHEMA_VERSION
 from storage import open_dataset
+from storage.batch import SampleBatch, check_source
+from storage.bits import mask_bits, padded_covers
 from storage.memory import load_memory
-from storage.samples import (
-    SAMPLE_FIELDS,
-    SampleBatch,
-    SampleField,
-    ShardRows,
-    SplitError,
-    check_source,
-    held_out_objects,
-    key_centres,
-    mask_bits,
-    padded_covers,
-    register_field,
-    resample_cloud,
-    resample_indices,
-    resample_keys,
-    split_by_object,
-    split_by_sample,
-)
+from storage.resampling import key_centres, resample_cloud, resample_indices, resample_keys
+from storage.sample_fields import SAMPLE_FIELDS, SampleField, ShardRows, register_field
+from storage.splits import SplitError, held_out_objects, split_by_object, split_by_sample
 
 torch = pytest.importorskip("torch")
 

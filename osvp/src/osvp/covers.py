@@ -16,9 +16,9 @@ import numpy as np
 import numpy.typing as npt
 
 from storage import LabelAmbiguity
+from storage.bits import mask_bits, padded_covers
 from storage.covers import cover_marginals, covers_universe, nearest_cover
 from storage.memory import PackedCovers
-from storage.samples import mask_bits, padded_covers
 
 MaskArray = npt.NDArray[np.uint64]
 FloatArray = npt.NDArray[np.float32]
@@ -150,7 +150,7 @@ class CoverBank:
 
     def padded(self, rows: npt.ArrayLike) -> tuple[FloatArray, BoolArray]:
         """The covers of ``rows`` as bit rows (B, C, n) padded to the batch's largest listing, and
-        (B, C) True where a cover is real (`storage.samples.padded_covers`): what
+        (B, C) True where a cover is real (`storage.bits.padded_covers`): what
         `osvp.loss.mincover_loss` takes."""
         index = np.asarray(rows, dtype=np.int64).reshape(-1)
         return padded_covers([self.covers_of(i) for i in index.tolist()], self.num_views)

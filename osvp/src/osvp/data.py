@@ -5,7 +5,7 @@ every sample's integer keys once through `storage.memory` (shard by shard, the r
 packed in one int16 array with offsets; a batch is then a numpy gather. Each sample is resampled to
 a fixed point count from its own stream (seed, epoch, sample), so batches never depend on batch
 size, order or device, and a resumed run sees exactly the tensors an uninterrupted one would; the
-conversions and the splits are `storage.samples`' (the one sample contract of every reader).
+conversions and the splits are the sample contract's (`storage.resampling`, `storage.splits`), every reader's.
 A version-2 dataset also gives every sample's minimum covers (`osvp.covers.CoverBank`), which the
 ambiguity-aware targets and metrics need; a version-1 dataset has none (`require_covers` says how
 to add them).
@@ -27,8 +27,9 @@ import torch
 import storage
 from osvp.covers import CoverBank
 from schemas.errors import DatagenError
+from storage.batch import SampleBatch
 from storage.memory import MemoryDataset, load_memory
-from storage.samples import SampleBatch, SplitError, split_by_object, split_by_sample
+from storage.splits import SplitError, split_by_object, split_by_sample
 
 Split = Literal["samples", "objects"]
 
@@ -42,7 +43,7 @@ class DataError(DatagenError):
 
 
 Batch = SampleBatch[torch.Tensor]
-"""A training batch: the sample contract's one batch type (`storage.samples.SampleBatch`), as tensors."""
+"""A training batch: the sample contract's one batch type (`storage.batch.SampleBatch`), as tensors."""
 
 
 @dataclass(frozen=True)
