@@ -130,11 +130,11 @@ def _object_row(
             continue
         episode = runs[planner]
         floor = max(
-            (coverage_at(e, views) for p, e in runs.items() if kind_of(p) in FLOORS),
+            (coverage_at(e, views) for e in runs.values() if kind_of(e.planner) in FLOORS),
             default=math.nan,
             key=lambda value: -math.inf if math.isnan(value) else value,
         )
-        ceiling = next((coverage_at(e, views) for p, e in runs.items() if kind_of(p) == CEILING), math.nan)
+        ceiling = next((coverage_at(e, views) for e in runs.values() if kind_of(e.planner) == CEILING), math.nan)
         value = coverage_at(episode, views)
         if math.isnan(floor) or math.isnan(ceiling) or math.isnan(value):
             continue
@@ -205,9 +205,9 @@ def _all_row(planner: str, views: int, rows: list[MarginRow]) -> MarginRow:
 
 def margin_table(rows: Sequence[MarginRow]) -> str:
     """The rows as Markdown: coverage, floor, ceiling and margins in percent points, captured share."""
-    head = "| object | planner | views | runs | coverage % | floor % | ceiling % | margin | ceiling margin | captured |"
-    shares = " | ".join(f"views to {share:g}" for share in SHARES)
-    lines = [head[:-1] + f" {shares} |", "|" + "---|" * 4 + "---:|" * (6 + len(SHARES))]
+    columns = ["object", "planner", "views", "runs", "coverage %", "floor %", "ceiling %", "margin", "ceiling margin"]
+    columns += ["captured", *(f"views to {share:g}" for share in SHARES)]
+    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * 2 + "---:|" * (len(columns) - 2)]
     for row in rows:
         cells = [row.object_name, row.planner, str(row.views), str(row.runs)]
         cells += [_number(v, 2) for v in (row.coverage, row.floor, row.ceiling, row.margin, row.ceiling_margin)]
