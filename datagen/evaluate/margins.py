@@ -92,9 +92,9 @@ class MarginRow:
 
 
 def margin_rows(episodes: Sequence[Episode], budgets: Sequence[int]) -> list[MarginRow]:
-    """Per object and over all objects, per planner (the ceiling and floors apart) and budget: margins
-    and captured share. Raises `InvalidArgument` naming the planners to add when the ceiling or both
-    floors were not played."""
+    """Per object and over all objects, per planner (the floors apart; the ceiling's own rows give the
+    room there is) and budget: margins and captured share. Raises `InvalidArgument` naming the planners
+    to add when the ceiling or both floors were not played."""
     kinds = {kind_of(e.planner) for e in episodes}
     missing = [name for name in (CEILING,) if name not in kinds]
     if missing or not kinds.intersection(FLOORS):
@@ -105,7 +105,7 @@ def margin_rows(episodes: Sequence[Episode], budgets: Sequence[int]) -> list[Mar
     by_situation: dict[tuple[str, int, int], dict[str, Episode]] = defaultdict(dict)
     for episode in episodes:
         by_situation[(episode.object_name, episode.rotation, episode.initial_view)][_label(episode)] = episode
-    planners = list(dict.fromkeys(_label(e) for e in episodes if kind_of(e.planner) not in (CEILING, *FLOORS)))
+    planners = list(dict.fromkeys(_label(e) for e in episodes if kind_of(e.planner) not in FLOORS))
     objects = list(dict.fromkeys(e.object_name for e in episodes))
     rows: list[MarginRow] = []
     for planner in planners:

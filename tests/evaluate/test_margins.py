@@ -58,9 +58,16 @@ def test_coverage_at_a_budget_and_views_to_a_share_by_hand() -> None:
 
 
 def test_captured_share_against_a_hand_computation() -> None:
-    rows = {(r.object_name, r.views): r for r in margin_rows(toy(), [3])}
+    rows_of = margin_rows(toy(), [3])
+    assert [(r.object_name, r.planner) for r in rows_of if r.planner == "gain"] == [
+        ("a", "gain"),
+        ("b", "gain"),
+        ("all", "gain"),
+    ]
+    ceiling = next(r for r in rows_of if r.planner == "gain" and r.object_name == "a")
+    assert ceiling.margin == ceiling.ceiling_margin == pytest.approx(10.0) and ceiling.captured == 1.0
+    rows = {(r.object_name, r.views): r for r in rows_of if r.planner == "osvp:m.pt@poco"}
     a, b, every = rows[("a", 3)], rows[("b", 3)], rows[("all", 3)]
-    assert {r.planner for r in rows.values()} == {"osvp:m.pt@poco"}  # the ceiling and floors are not rows
     # a: planner (0.85 + 0.60) / 2 = 72.5 %; floor (0.80 + 0.60) / 2 = 70 %; ceiling (0.90 + 0.70) / 2 = 80 %
     assert (a.runs, a.coverage, a.floor, a.ceiling) == (
         2,
