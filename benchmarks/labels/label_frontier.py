@@ -17,7 +17,7 @@ import dataclasses
 import time
 
 from datagen.evaluate.episode import Episode, run_episode
-from datagen.evaluate.planners import OraclePlanner
+from datagen.evaluate.oracle import OraclePlanner
 from datagen.evaluate.report import markdown_table, summarise
 from datagen.evaluate.run import parse_selection, refiner_config
 from datagen.evaluate.scene import build_scene

@@ -8,7 +8,6 @@ from __future__ import annotations
 import json
 import os
 import time
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Annotated
 
@@ -17,16 +16,29 @@ import typer
 from datagen.cli.common import ConfigOption, dataset_options, error_console, progress_bar, say, user_errors
 from datagen.config_io import load_config
 from datagen.errors import InvalidArgument
-from schemas.planning import PLANNER_ENTRY_POINTS
 
 EXIT_SOME_FAILED = 1
 
 
-def _installed_plugins() -> str:
-    """The planner plugins installed now, for the help (`datagen.evaluate.planners.installed_plugins`, which
-    this module does not import: it would load the pipeline on every command)."""
-    names = sorted({plugin.name for plugin in entry_points(group=PLANNER_ENTRY_POINTS)})
-    return ", ".join(names) or "none"
+def _planner_help() -> str:
+    """``--planner``'s help, written from the planner registry (`datagen.evaluate.planners`: every built-in
+    kind's usage and every installed plug-in)."""
+    from datagen.evaluate.planners import planner_help
+
+    return (
+        f"{planner_help()}. A plugin's scorer is played one-shot (its views taken at once) or, when it is a "
+        "next-best-view scorer, step by step: asked again after every view with the cloud, occupancy grid and "
+        "view state observed so far, visiting its best open view, for 10 views in all or --budget-views K, or "
+        "until every open view scores 0. Repeat for several."
+    )
+
+
+def _refiner_help() -> str:
+    """``--refiner``'s help, from the refiner registry (`datagen.pipeline.refine.factory.BUILDERS`)."""
+    from datagen.pipeline.refine.factory import BUILDERS
+
+    *others, last = BUILDERS
+    return f"{', '.join(others)} or {last} (default: the config's); repeatable."
 
 
 def evaluate(
@@ -36,26 +48,13 @@ def evaluate(
         typer.Option(
             "--planner",
             "-p",
-            help=(
-                "oracle, oracle:SETTING=V[,..] (label settings alpha, objective, budget, tau), greedy, "
-                "greedy:K, gain, gain:K (next-best-view play with the true gains: greedy's views, asked again "
-                "after every view), random, random:K, fixed, fixed:K (the best constant views of --fixed-from), "
-                "spread, spread:K (views far apart, no data), KIND:match=PLANNER (random, fixed or spread with as many "
-                "views as PLANNER, run by run), all, or NAME:ARG / NAME+DECODING:ARG of a planner plugin (entry "
-                f"point group {PLANNER_ENTRY_POINTS}, e.g. osvp:CHECKPOINT; installed: {_installed_plugins()}). "
-                "A plugin's scorer is played one-shot (its views taken at once) or, when it is a next-best-view "
-                "scorer, step by step: asked again after every view with the cloud, occupancy grid and view "
-                "state observed so far, visiting its best open view, for 10 views in all or --budget-views K, "
-                "or until every open view scores 0. With osvp: a checkpoint of --target gain (PCNBV-style) or "
-                "--network nbvnet (NBVNet-style) plays step by step; one of a cover target (osvp, or --network "
-                "scvp on the occupancy grid) plays one shot. Repeat for several."
-            ),
+            help=_planner_help(),
         ),
     ],
     config: ConfigOption = None,
     refiner: Annotated[
         list[str] | None,
-        typer.Option("--refiner", "-r", help="none, carve, poisson or poco (default: the config's); repeatable."),
+        typer.Option("--refiner", "-r", help=_refiner_help()),
     ] = None,
     initial_views: Annotated[
         str, typer.Option("--initial-views", help="Initial view ids: 'all', '0,8,16' or '0-3'.")
@@ -107,7 +106,7 @@ def evaluate(
     """Simulate the one-shot pipeline on each object and report coverage, views and movement per planner."""
     from datagen.evaluate.episode import Budget
     from datagen.evaluate.margins import margin_rows, margin_table
-    from datagen.evaluate.planners import PlannerContext
+    from datagen.evaluate.protocol import PlannerContext
     from datagen.evaluate.report import markdown_table, per_object_rows, summarise
     from datagen.evaluate.run import EvaluationSpec, ObjectOutcome, check_planners, evaluate, parse_selection
 

@@ -158,6 +158,7 @@ class Episode:
             for name in ("object_name", "object_id", "rotation", "initial_view", "refiner", "planner")
         }
         data.update(planned=list(self.planned), visited=list(self.visited), exact_path=self.exact_path)
+        data.update(ordered=self.ordered)
         data.update(step_metres=[round(s, 6) for s in self.step_metres])
         data.update(coverage_curve=[round(c, 6) for c in self.coverage_curve])
         data.update(reference_size=self.reference_size, ground_truth_size=self.ground_truth_size)

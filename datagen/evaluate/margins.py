@@ -11,7 +11,8 @@ point or two, the share moves fast: read it beside the margins themselves).
 
 A run's coverage at V views comes from its answer at every count (`Episode.count_curve`, one-shot
 planners that answer for any count) or, for a planner that decided its order (step-by-step players,
-`Episode.ordered`), from its coverage after its first V views; other runs have none at V.
+`Episode.ordered`), from its coverage after its first V views (all of it past the point where it
+stopped having seen everything); other runs have none at V.
 """
 
 from __future__ import annotations
@@ -39,8 +40,11 @@ def coverage_at(episode: Episode, views: int) -> float:
     """The run's coverage (fraction) with ``views`` views in all; NaN where the run cannot say."""
     if episode.count_curve is not None and 1 <= views <= len(episode.count_curve):
         return episode.count_curve[views - 1]
-    if episode.ordered and 1 <= views <= len(episode.coverage_curve):
-        return episode.coverage_curve[views - 1]
+    curve = episode.coverage_curve
+    if episode.ordered and 1 <= views <= len(curve):
+        return curve[views - 1]
+    if episode.ordered and curve and curve[-1] >= 1.0 - 1e-12 and views >= 1:
+        return curve[-1]  # it stopped because no view adds anything: every further view sees all there is
     return math.nan
 
 

@@ -14,7 +14,9 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from datagen.evaluate.fixed import FixedPlans
 from datagen.evaluate.situation import Situation
+from schemas.config import GenerationConfig
 
 
 @dataclass(frozen=True)
@@ -43,3 +45,18 @@ def one_line(exc: BaseException, named: bool = True) -> str:
     text = str(exc).strip()
     line = text.splitlines()[0] if text else ""
     return f"{type(exc).__name__}: {line}" if named or not line else line
+
+
+@dataclass(frozen=True)
+class PlannerContext:
+    """What building a planner may need besides its spec: the evaluation's config (the oracle's label
+    settings) and the fixed plans chosen from a training dataset (``--fixed-from``)."""
+
+    config: GenerationConfig = field(default_factory=GenerationConfig)
+    fixed: FixedPlans | None = None
+    budget_views: int | None = None
+    """``--budget-views``: how many views in all a next-best-view planner plays (default 10)."""
+
+
+MATCH_PREFIX = "match="
+"""``random:match=SPEC``: the argument that names the planner whose view count a random planner takes."""

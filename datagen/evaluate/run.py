@@ -21,18 +21,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from datagen.errors import ConfigError, DatagenError, InvalidArgument
+from datagen.evaluate.baselines import MatchedPlanner, baseline_at_count, chosen_count, is_baseline, match_planners
 from datagen.evaluate.episode import Budget, Episode, run_episode
 from datagen.evaluate.fixed import FixedPlans
-from datagen.evaluate.planners import (
-    MatchedPlanner,
-    Planner,
-    PlannerContext,
-    baseline_at_count,
-    chosen_count,
-    is_baseline,
-    make_planner,
-    match_planners,
-)
+from datagen.evaluate.planners import make_planner
+from datagen.evaluate.protocol import Planner, PlannerContext
 from datagen.evaluate.scene import Scene, build_scene
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.objects.objects_file import read_objects_file

@@ -127,3 +127,14 @@ def test_a_grid_network_trains_and_evaluates_from_the_command_line(
     assert 0.0 <= report["next_view"]["best_view_accuracy"] <= 1.0
     assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt")]) == 0
     assert capsys.readouterr().out.startswith("next-best-view planner (best_view), ")
+
+
+def test_network_help_is_written_from_the_registry(capsys: pytest.CaptureFixture[str]) -> None:
+    """`osvp train --help` names every registered network family with what it is (no list by hand)."""
+    from osvp.architectures import ARCHITECTURES
+
+    with pytest.raises(SystemExit):
+        main(["train", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for name, family in ARCHITECTURES.items():
+        assert f"{name}: {' '.join(family.summary.split())}" in text

@@ -12,8 +12,10 @@ import pytest
 
 from datagen.errors import DatagenError, PlannerError
 from datagen.evaluate import planners as planners_module
-from datagen.evaluate.planners import DecodingScorer, ScoredPlanner, make_planner
+from datagen.evaluate.planners import make_planner
+from datagen.evaluate.scored import ScoredPlanner
 from datagen.evaluate.situation import RefinedScene, Situation
+from schemas.planning import DecodingScorer
 
 PROBABILITIES = np.linspace(0.0, 0.93, 32)
 """View v scores 0.03 v: views 17.. exceed 0.5, views 11.. exceed 0.3, the top three are 29, 30 and 31."""

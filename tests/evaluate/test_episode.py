@@ -11,9 +11,11 @@ import pytest
 
 from datagen.errors import InvalidArgument
 from datagen.evaluate import path as path_module
+from datagen.evaluate.baselines import AllPlanner
 from datagen.evaluate.episode import Budget, Episode, chamfer_mm, run_episode
+from datagen.evaluate.oracle import OraclePlanner
 from datagen.evaluate.path import held_karp, open_path_heuristic, order_views, path_matrix, visit_order
-from datagen.evaluate.planners import AllPlanner, OraclePlanner, Plan
+from datagen.evaluate.protocol import Plan
 from datagen.evaluate.scene import Scene, build_scene
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.ground_truth import GroundTruth

@@ -15,7 +15,8 @@ from typer.testing import CliRunner
 from datagen.cli.main import app
 from datagen.errors import PlannerError
 from datagen.evaluate.fixed import case_weights, choose_fixed_plans, spread_views
-from datagen.evaluate.planners import PlannerContext, make_planner
+from datagen.evaluate.planners import make_planner
+from datagen.evaluate.protocol import PlannerContext
 from datagen.pipeline.coverage import view_masks
 
 

@@ -52,6 +52,8 @@ def test_coverage_at_a_budget_and_views_to_a_share_by_hand() -> None:
     route = run("oracle", "a", 0, curve=(0.5, 0.95, 0.99))  # a set in route order: no answer per count
     assert coverage_at(one_shot, 3) == 0.96 and coverage_at(played, 2) == 0.95
     assert math.isnan(coverage_at(route, 2)) and math.isnan(coverage_at(played, 4))
+    finished = run("gain", "a", 0, curve=(0.5, 0.95, 1.0), ordered=True)  # stopped: it has seen everything
+    assert coverage_at(finished, 6) == 1.0
     assert views_to_share(one_shot, 0.95) == 3.0 and views_to_share(one_shot, 0.99) == 4.0
     assert views_to_share(played, 0.95) == 2.0 and views_to_share(played, 0.99) == 3.0
     assert math.isnan(views_to_share(route, 0.95)) and math.isnan(views_to_share(one_shot, 0.999))

@@ -16,18 +16,14 @@ from typer.testing import CliRunner
 from datagen.cli import common
 from datagen.cli.main import app
 from datagen.errors import PlannerError
+from datagen.evaluate.baselines import MatchedRandomPlanner, match_planners
 from datagen.evaluate.episode import Budget, Episode
 from datagen.evaluate.figures import legend_label
-from datagen.evaluate.planners import (
-    MatchedRandomPlanner,
-    Plan,
-    Planner,
-    ScoredPlanner,
-    make_planner,
-    match_planners,
-)
+from datagen.evaluate.planners import make_planner
+from datagen.evaluate.protocol import Plan, Planner
 from datagen.evaluate.report import markdown_table, per_object_rows, summarise
 from datagen.evaluate.run import check_planners, run_situation
+from datagen.evaluate.scored import ScoredPlanner
 from datagen.evaluate.situation import LabelError, RefinedScene, Situation
 from datagen.pipeline.random_streams import Purpose, stream
 

@@ -10,7 +10,7 @@ from support.shards import EngineDataset, engine_dataset  # noqa: F401 (the fixt
 import storage
 from datagen.config_io import load_config
 from datagen.errors import ObjectError
-from datagen.evaluate.planners import OraclePlanner
+from datagen.evaluate.oracle import OraclePlanner
 from datagen.evaluate.scene import build_scene
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.objects.objects_file import read_objects_file

@@ -13,8 +13,9 @@ from typer.testing import CliRunner
 
 from datagen.cli.main import app
 from datagen.evaluate.episode import run_episode
-from datagen.evaluate.planners import CHOICE_THRESHOLD, make_planner
+from datagen.evaluate.planners import make_planner
 from datagen.evaluate.scene import build_scene
+from datagen.evaluate.scored import CHOICE_THRESHOLD
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.objects.objects_file import read_objects_file
 from datagen.pipeline.objects.prepare import prepare_object

@@ -19,15 +19,10 @@ import pytest
 
 from datagen.errors import PlannerError
 from datagen.evaluate import planners as planners_module
-from datagen.evaluate.planners import (
-    ScoredPlanner,
-    installed_plugins,
-    lookup_planner,
-    make_planner,
-    planner_help,
-    planner_kinds,
-)
+from datagen.evaluate import scored as scored_module
+from datagen.evaluate.planners import installed_plugins, lookup_planner, make_planner, planner_help, planner_kinds
 from datagen.evaluate.run import EvaluationSpec, evaluate
+from datagen.evaluate.scored import ScoredPlanner
 from datagen.evaluate.situation import RefinedScene, Situation
 from schemas.config import GenerationConfig
 from schemas.planning import PLANNER_ENTRY_POINTS, DecodingScorer, ViewScorer
@@ -68,7 +63,7 @@ def install(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Install
     site = tmp_path / "site"
     site.mkdir()
     monkeypatch.syspath_prepend(str(site))
-    monkeypatch.setattr(planners_module, "_SCORERS", {})
+    monkeypatch.setattr(scored_module, "_SCORERS", {})
     modules: list[str] = []
 
     def add(dist: str, module: str, source: str, entry: str | None = None) -> Path:

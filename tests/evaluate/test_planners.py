@@ -13,18 +13,13 @@ import pytest
 
 from datagen.errors import DatagenError, PlannerError
 from datagen.evaluate import planners as planners_module
+from datagen.evaluate.baselines import AllPlanner, RandomPlanner
 from datagen.evaluate.episode import run_episode
-from datagen.evaluate.planners import (
-    AllPlanner,
-    GreedyPlanner,
-    OraclePlanner,
-    Plan,
-    RandomPlanner,
-    ScoredPlanner,
-    make_planner,
-    planner_help,
-)
+from datagen.evaluate.oracle import OraclePlanner
+from datagen.evaluate.planners import GreedyPlanner, make_planner, planner_help
+from datagen.evaluate.protocol import Plan
 from datagen.evaluate.scene import Scene
+from datagen.evaluate.scored import ScoredPlanner
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.ground_truth import GroundTruth
 from datagen.pipeline.imaging import Observation, TaskImaging

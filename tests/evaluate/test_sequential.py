@@ -10,7 +10,8 @@ import pytest
 
 from datagen.errors import PlannerError
 from datagen.evaluate.episode import Budget, run_episode
-from datagen.evaluate.planners import GreedyPlanner, PlannerContext, make_planner
+from datagen.evaluate.planners import GreedyPlanner, make_planner
+from datagen.evaluate.protocol import PlannerContext
 from datagen.evaluate.sequential import DEFAULT_TOTAL_VIEWS, SequentialPlanner, TrueGains
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.occupancy import view_grids

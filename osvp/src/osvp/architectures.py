@@ -48,6 +48,8 @@ class Architecture:
     build: Callable[[Preset, int], nn.Module]
     default_target: str
     """What ``osvp train`` trains it on unless told (`osvp.loss.TARGETS`): the best measured settings."""
+    summary: str = ""
+    """One phrase for ``osvp train --help`` (its ``--network`` choices are written from the registry)."""
 
     def preset(self, name: str) -> Preset:
         if name not in self.presets:
@@ -86,9 +88,45 @@ def _build_grid(preset: Preset, num_views: int) -> nn.Module:
 
 # The recipe measured ``mincover`` best for the one-shot planners (osvp/recipe/RESULTS.md, issue 21);
 # NBVNet is a classifier of the best next view.
-register_architecture(Architecture("osvp", "points", PRESETS, NetworkPreset.from_dict, _build_osvp, "mincover"))
-register_architecture(Architecture("nbvnet", "grid", NBVNET_PRESETS, GridPreset.from_dict, _build_grid, "best_view"))
-register_architecture(Architecture("scvp", "grid", SCVP_PRESETS, GridPreset.from_dict, _build_grid, "mincover"))
+register_architecture(
+    Architecture(
+        "osvp",
+        "points",
+        PRESETS,
+        NetworkPreset.from_dict,
+        _build_osvp,
+        "mincover",
+        "AIR-OSVP's cloud and view-state transformers (with --target gain a PCNBV-style next-best-view planner)",
+    )
+)
+register_architecture(
+    Architecture(
+        "nbvnet",
+        "grid",
+        NBVNET_PRESETS,
+        GridPreset.from_dict,
+        _build_grid,
+        "best_view",
+        "NBVNet's 3D CNN on the occupancy grid, the best next view as a class (a version-3 dataset)",
+    )
+)
+register_architecture(
+    Architecture(
+        "scvp",
+        "grid",
+        SCVP_PRESETS,
+        GridPreset.from_dict,
+        _build_grid,
+        "mincover",
+        "the same CNN with the view state, a one-shot set-cover planner (a version-3 dataset)",
+    )
+)
+
+
+def architecture_help() -> str:
+    """Every registered network family and what it is, for ``--network``'s help."""
+    return "; ".join(f"{name}: {family.summary}" for name, family in ARCHITECTURES.items())
+
 
 PRESET_NAMES = tuple(sorted({name for family in ARCHITECTURES.values() for name in family.presets}))
 """Every preset name some architecture has (each architecture has ``small`` and ``paper``)."""

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from osvp.architectures import ARCHITECTURES, DEFAULT_ARCHITECTURE, PRESET_NAMES
+from osvp.architectures import ARCHITECTURES, DEFAULT_ARCHITECTURE, PRESET_NAMES, architecture_help
 from osvp.checkpoint import Checkpoint, load_checkpoint
 from osvp.data import DataError, SampleBank
 from osvp.decoding import Decoding, parse_decoding
@@ -80,9 +80,7 @@ def _parser() -> argparse.ArgumentParser:
             "--network",
             choices=sorted(ARCHITECTURES),
             default=DEFAULT_ARCHITECTURE,
-            help="osvp: AIR-OSVP's cloud and view-state transformers (with --target gain a PCNBV-style next-best-view "
-            "planner); nbvnet: NBVNet's 3D CNN on the occupancy grid, the best next view as a class; scvp: the same "
-            "CNN with the view state, a one-shot set-cover planner (grid networks need a version-3 dataset)",
+            help=architecture_help(),
         )
         sub.add_argument("--preset", choices=PRESET_NAMES, default="small", help="the network's size (default small)")
         sub.add_argument("--epochs", type=int, default=30)
