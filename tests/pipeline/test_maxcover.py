@@ -10,8 +10,8 @@ import pytest
 from support import storage as fx
 
 from datagen.pipeline.maxcover import CoverageSearch, SearchBudgetExceeded, visibility_masks
-from datagen.pipeline.objectives import LABELLERS, task_labeller
-from datagen.pipeline.setcover import LabelError, mask_to_views
+from datagen.pipeline.objectives import task_labeller
+from datagen.pipeline.setcover import mask_to_views
 from schemas.config import GenerationConfig
 
 
@@ -146,8 +146,11 @@ def test_partial_cover_reaches_tau_with_the_fewest_views() -> None:
         assert covered >= config.tau_keys(reference)
 
 
-def test_every_objective_is_registered_and_an_unknown_one_is_a_label_error() -> None:
-    assert sorted(LABELLERS) == ["cover", "max_coverage", "partial_cover"]
-    config = fx.config().model_copy(update={"label_objective": "best_guess"})
-    with pytest.raises(LabelError, match="unknown label objective 'best_guess'; choose one of cover"):
+def test_every_objective_is_registered_and_an_unknown_one_is_refused_by_name() -> None:
+    from schemas.objectives import OBJECTIVES, UnknownObjective
+
+    assert list(OBJECTIVES) == ["cover", "max_coverage", "partial_cover"]
+    assert all(callable(objective.load_labeller()) for objective in OBJECTIVES.values())
+    config = fx.config().model_copy(update={"label_objective": "best_guess"})  # past the config's own check
+    with pytest.raises(UnknownObjective, match="unknown label objective 'best_guess'; choose one of cover"):
         task_labeller((), None, config)
