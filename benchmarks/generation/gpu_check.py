@@ -100,24 +100,23 @@ class Variant:
 
 
 class RecordingRefiner(PocoRefiner):
-    """The ``poco`` refiner, unchanged, keeping what each `refine_one` saw: the probabilities R(O) was
-    cut from tell a rounding difference (a key near the threshold) from a broken computation."""
+    """The ``poco`` refiner, unchanged, keeping what each request's refinement saw: the probabilities
+    R(O) was cut from tell a rounding difference (a key near the threshold) from a broken computation.
+    Each request runs alone (`probabilities`), which gives what `PocoRefiner.refine` gives together:
+    every request's network job is its own."""
 
     def __init__(self, base: PocoRefiner) -> None:
         super().__init__(base.config, base.model, base.weights_id, base.threshold, base.finetune_steps, base.device)
         self.records: list[Refinement] = []
-        self._last: tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]] | None = None
 
-    def probabilities(self, request: RefineRequest) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float32]]:
-        self._last = super().probabilities(request)
-        return self._last
-
-    def refine_one(self, request: RefineRequest) -> npt.NDArray[np.int64]:
-        kept = super().refine_one(request)  # calls `probabilities` above
-        assert self._last is not None
-        queries, prob = self._last
-        self.records.append(Refinement(request.mask, queries, prob, kept))
-        return kept
+    def refine(self, requests: Sequence[RefineRequest]) -> list[npt.NDArray[np.int64]]:
+        out = []
+        for request in requests:
+            queries, prob = self.probabilities(request)
+            kept = queries[prob > self.threshold]
+            self.records.append(Refinement(request.mask, queries, prob, kept))
+            out.append(kept)
+        return out
 
 
 @contextmanager

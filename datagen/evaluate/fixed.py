@@ -20,9 +20,10 @@ from every view taken so far (ties to the lowest index), a well-spread plan for 
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +33,9 @@ from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.maxcover import CoverageAnswer, CoverageSearch, SearchBudgetExceeded, visibility_masks
 from datagen.pipeline.setcover import mask_to_views
 from schemas.shard import keys_array, offsets_array
+
+if TYPE_CHECKING:
+    from storage import Dataset
 
 SCALE = 1 << 40
 """Integer weight of one whole case (a case's keys weigh 1/|R_t| each, times this), up to 4,096 tasks;
@@ -134,21 +138,26 @@ READ_THREADS = 8
 """Shards read side by side when the visibility sets of every task are summed."""
 
 
-def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> CaseWeights:
-    """Read every committed task's V_i and single-view cases from the dataset at ``url``."""
-    from storage import ShardReader, open_dataset
-
-    dataset = open_dataset(url, storage_options)
-    num_views = dataset.num_views
-    single = np.flatnonzero(dataset.values("case_size") == 1)  # index columns, not the whole index
+def single_view_cases(dataset: Dataset) -> dict[str, list[int]]:
+    """The dataset's single-view cases: each shard (task) with the initial views of its cases, from the
+    index columns alone."""
+    single = np.flatnonzero(dataset.values("case_size") == 1)
     states = dataset.values("view_state")[single].astype(np.uint64)
     owners = dataset.samples.codes[single]
     singles: dict[str, list[int]] = defaultdict(list)
     for code, state in zip(owners.tolist(), states.tolist(), strict=True):
         singles[dataset.samples.shards[code]].append(int(state).bit_length() - 1)
-    weights: dict[int, int] = defaultdict(int)
-    initial = cases = 0
-    scale = case_scale(len(singles), num_views)
+    return singles
+
+
+def task_visibility(
+    dataset: Dataset, shards: Sequence[str]
+) -> Iterator[tuple[str, npt.NDArray[np.uint64], npt.NDArray[np.int64]]]:
+    """(shard, its keys' distinct view masks, their key counts) of each task, from its stored V_i,
+    several shards read side by side (in the given order)."""
+    from storage import ShardReader
+
+    num_views = dataset.num_views
 
     def visibility(shard: str) -> tuple[str, npt.NDArray[np.uint64], npt.NDArray[np.int64]]:
         reader = ShardReader(dataset.location, shard, span=dataset.samples.span(shard))
@@ -156,10 +165,21 @@ def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> Cas
         packed = pack_keys(keys)
         return shard, *visibility_masks([packed[offsets[v] : offsets[v + 1]] for v in range(num_views)])
 
-    with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:  # reads overlap; sums do not depend on order
-        visible = pool.map(visibility, sorted(singles))
-        for shard, masks, counts in visible:
-            initial, cases = _add_task(weights, masks, counts, singles[shard], initial, cases, scale)
+    with ThreadPoolExecutor(max_workers=READ_THREADS) as pool:
+        yield from pool.map(visibility, shards)
+
+
+def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> CaseWeights:
+    """Read every committed task's V_i and single-view cases from the dataset at ``url``."""
+    from storage import open_dataset
+
+    dataset = open_dataset(url, storage_options)
+    singles = single_view_cases(dataset)
+    weights: dict[int, int] = defaultdict(int)
+    initial = cases = 0
+    scale = case_scale(len(singles), dataset.num_views)
+    for shard, masks, counts in task_visibility(dataset, sorted(singles)):  # sums do not depend on order
+        initial, cases = _add_task(weights, masks, counts, singles[shard], initial, cases, scale)
     if not cases:
         raise PlannerError(f"{url}: holds no single-view cases to choose fixed plans from")
     ordered = sorted(weights)
@@ -169,7 +189,7 @@ def case_weights(url: str, storage_options: dict[str, Any] | None = None) -> Cas
         initial_weight=initial,
         tasks=len(singles),
         cases=cases,
-        num_views=num_views,
+        num_views=dataset.num_views,
         scale=scale,
     )
 

@@ -16,6 +16,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
+from datagen.evaluate.training_room import Room
 from datagen.inspection.stats import DatasetStats
 from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
@@ -82,6 +83,7 @@ def card_text(
     stats: DatasetStats,
     fixed: list[FixedRow] | None,
     sources: list[MeshSource] | None,
+    room: list[Room] | None = None,
 ) -> str:
     """The card as Markdown."""
     config = info.config
@@ -130,6 +132,21 @@ def card_text(
             f"| {r.size} | {', '.join(map(str, r.views))} | {r.coverage:.1%} | {'yes' if r.exact else 'greedy'} |"
             for r in fixed
         ]
+    if room:
+        lines += [
+            "",
+            "## The room on these objects: floor and ceiling at equal views",
+            "",
+            "Over the single-view cases: the floor is the better of the fixed set above and views spread from",
+            "the initial one; the ceiling is the true gains played step by step (`datagen evaluate -p gain`).",
+            "Their difference is what a planner could add here (`datagen evaluate --margins` on unseen meshes).",
+            "",
+            "| views | cases | fixed % | spread % | floor % | ceiling % | margin (points) |",
+            "|---:|---:|---:|---:|---:|---:|---:|",
+        ]
+        for r in room:
+            cells = (r.fixed, r.spread, r.floor, r.ceiling, r.margin)
+            lines.append(f"| {r.views} | {r.cases:,} | " + " | ".join(f"{v:.2f}" for v in cells) + " |")
     lines += ["", "## Mesh sources", ""]
     if sources is None:
         lines.append("Not listed: give the job's objects file (`datagen shards card URL --objects FILE`).")

@@ -28,6 +28,22 @@ def copy(engine_dataset: EngineDataset, tmp_path: Path) -> Path:  # noqa: F811
     return target
 
 
+def case_masks(url: str) -> list[tuple[np.ndarray, int]]:
+    """Each single-view case of the dataset: its task's key view masks and its initial view."""
+    dataset = open_dataset(url)
+    singles = np.flatnonzero(dataset.values("case_size") == 1)
+    states = dataset.values("view_state")[singles].astype(np.int64).tolist()
+    shards = [dataset.index.column("shard")[int(row)].as_py() for row in singles]
+    found = {}
+    for shard in sorted(set(shards)):
+        reader = dataset.shard(shard)
+        keys = reader.array("visible_keys").astype(np.int64) + 32768
+        offsets = reader.array("visible_offsets")
+        ids = (keys[:, 0] << 32) | (keys[:, 1] << 16) | keys[:, 2]
+        found[shard] = key_view_masks([ids[offsets[v] : offsets[v + 1]] for v in range(dataset.num_views)])
+    return [(found[shard], state.bit_length() - 1) for shard, state in zip(shards, states, strict=True)]
+
+
 def brute_force_coverage(url: str, size: int) -> float:
     """The best mean coverage, over the dataset's single-view cases, of their initial view and any
     ``size`` views added: each task's reference is every key some view sees."""
@@ -82,6 +98,20 @@ def test_the_card_states_the_protocol_beside_the_data_and_export_copies_it(
     coverage = [float(share) for _, _, share, _ in rows]
     assert coverage == sorted(coverage) and coverage[-1] <= 100.0
     assert coverage[0] == pytest.approx(100 * brute_force_coverage(str(copy), 1), abs=0.05)
+    # the ceiling at 2 views: the one view adding the most to each case's initial view, by brute force
+    room = re.findall(
+        r"^\| 2 \| ([\d,]+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \| ([\d.]+) \| (-?[\d.]+) \|$", card, re.M
+    )
+    (cases, fixed, spread, floor, ceiling, margin) = room[0]
+    best = [
+        max(np.count_nonzero((masks & np.uint64((1 << initial) | (1 << v))) != 0) for v in range(32)) / masks.size
+        for masks, initial in case_masks(str(copy))
+    ]
+    assert int(cases.replace(",", "")) == len(best)
+    assert float(ceiling) == pytest.approx(100 * float(np.mean(best)), abs=0.01)
+    # the better of the two in each case: at least the better of their means, at most the best single view
+    assert max(float(fixed), float(spread)) - 0.01 <= float(floor) <= float(ceiling)
+    assert float(margin) == pytest.approx(float(ceiling) - float(floor), abs=0.02) and float(margin) >= 0
     printed = runner.invoke(app, ["shards", "card", str(copy), "--out", "-", "--no-fixed"])
     assert printed.exit_code == 0 and "Not computed (`--no-fixed`)." in printed.stdout
     exported = tmp_path / "export"
