@@ -29,20 +29,17 @@ HOST_CALLS = 1024
 
 
 class RefinerHost:
-    """The actor's body: the config's POCO network on ``device``, served by a `NetworkHost`."""
+    """The actor's body: the config's refiner network on ``device``, served by the `NetworkHost` its
+    refiner's entry in `datagen.pipeline.refine.factory.HOSTED` builds."""
 
     def __init__(self, config_json: str, device: str, encoder_batch: int) -> None:
         import torch
 
-        from datagen.pipeline.refine.factory import load_poco_refiner
-        from datagen.pipeline.refine.poco.network_jobs import NetworkHost
+        from datagen.pipeline.refine.factory import HOSTED
 
         torch.set_num_threads(1)  # the one CPU the actor reserves, as a worker's torch (`fixed_torch_threads`)
         config = GenerationConfig.model_validate_json(config_json)
-        refiner = load_poco_refiner(config, device, config.poco_preset)
-        self.host = NetworkHost(
-            refiner.model, refiner.weights_id, device, refiner.knn_backend, encoder_batch=encoder_batch
-        )
+        self.host = HOSTED[config.refiner].host(config, device, encoder_batch)
 
     def run(self, jobs: list[NetworkJob]) -> NetworkReply:
         return self.host.run(jobs)

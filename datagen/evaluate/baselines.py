@@ -147,9 +147,11 @@ def _chooser(kind: str, spec: str, context: PlannerContext) -> Chooser:
 def baseline_at_count(kind: str, context: PlannerContext) -> MatchedPlanner | None:
     """The unbound matched baseline ``kind`` (random, fixed or spread) that gives every run a lift, None
     where it cannot be built (fixed without a training dataset)."""
-    if kind == "fixed" and context.fixed is None:
+    try:
+        chooser = _chooser(kind, kind, context)
+    except PlannerError:  # its chooser cannot be made here (fixed plans without a training dataset)
         return None
-    return MatchedPlanner(f"{kind}:match", "", _chooser(kind, kind, context), kind)
+    return MatchedPlanner(f"{kind}:match", "", chooser, kind)
 
 
 def match_planners(planners: Sequence[Planner]) -> list[Planner]:

@@ -222,7 +222,11 @@ def _greedy(spec: PlannerSpec, context: PlannerContext) -> Planner:
     return GreedyPlanner(_view_count(spec.text, spec.argument) if spec.argument else None)
 
 
-def _baseline(kind: str, choose: Callable[[PlannerSpec, PlannerContext], Chooser]) -> PlannerBuilder:
+def _baseline(
+    kind: str,
+    choose: Callable[[PlannerSpec, PlannerContext], Chooser],
+    make: Callable[[str, Chooser, int | None], Planner] = BaselinePlanner,
+) -> PlannerBuilder:
     def build(spec: PlannerSpec, context: PlannerContext) -> Planner:
         _plain(spec, f"{kind}:K")
         chooser = choose(spec, context)
@@ -232,13 +236,13 @@ def _baseline(kind: str, choose: Callable[[PlannerSpec, PlannerContext], Chooser
                 raise PlannerError(f"planner {spec.text!r} names no planner after '='; give {kind}:match=PLANNER")
             return MatchedPlanner(spec.text, wanted, chooser, kind)
         total = _view_count(spec.text, spec.argument) if spec.argument else None
-        return RandomPlanner(total) if kind == "random" else BaselinePlanner(kind, chooser, total)
+        return make(kind, chooser, total)
 
     return build
 
 
 register_planner("random", "random, random:K, random:match=PLANNER")(
-    _baseline("random", lambda s, c: CHOOSERS["random"](c, s.text))
+    _baseline("random", lambda s, c: CHOOSERS["random"](c, s.text), lambda kind, chooser, total: RandomPlanner(total))
 )
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from datagen.evaluate.training_room import Room
 from datagen.inspection.stats import DatasetStats
+from datagen.pipeline.refine.factory import REFINER_FIELDS
 from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
 
@@ -161,9 +162,8 @@ def card_text(
 
 def _protocol(config: GenerationConfig) -> list[str]:
     space = config.view_space
-    refiner: str = config.refiner
-    if refiner == "poco":
-        refiner += f" (version {config.poco_version}, preset {config.poco_preset}, threshold {config.poco_threshold})"
+    settings = ", ".join(f"{name} {getattr(config, name)}" for name in REFINER_FIELDS.get(config.refiner, ()))
+    refiner = config.refiner + (f" ({settings})" if settings else "")
     camera = config.camera
     return [
         f"- views: {space.count} on a sphere of radius {space.radius} m ({space.source})",

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from datagen.errors import ObjectsFileError
 from datagen.pipeline.objects.objects_file import relative_path
+from datagen.pipeline.objects.spec import content_digest
 
 SNIFF_BYTES = 4096
 """Bytes read from every file: holds the header of PLY, OFF, STL and GLB files."""
@@ -210,14 +211,11 @@ def _byte_copies(root: Path, files: list[Path]) -> dict[Path, Path]:
 
 
 def _sha256(path: Path) -> str | None:
-    digest = hashlib.sha256()
+    """The file's sha256 (`spec.content_digest`, as object ids are made), None where it cannot be read."""
     try:
-        with open(path, "rb") as handle:
-            for block in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(block)
+        return content_digest(path).hexdigest()
     except OSError:
         return None
-    return digest.hexdigest()
 
 
 def _walk(root: Path) -> tuple[list[Path], list[SkippedFile]]:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -101,6 +102,39 @@ BUILDERS: dict[str, RefinerBuilder] = {
     "poisson": build_poisson,
     "poco": build_poco,
 }
+
+
+REFINER_FIELDS: dict[str, tuple[str, ...]] = {
+    "none": (),
+    "carve": (),
+    "poisson": ("poisson_depth",),
+    "poco": ("poco_version", "poco_preset", "poco_threshold", "finetune_steps"),
+}
+"""The config fields each refiner reads besides the band (what a dataset card states of it)."""
+
+
+@dataclass(frozen=True)
+class NetworkHosting:
+    """How a refiner with a network lets one host per node run it for every task there
+    (`RunSettings.shared_refiner`, `datagen.engine.refiner_host`)."""
+
+    shares: Callable[[GenerationConfig], bool]
+    """Whether a config's refinement can go to a shared host at all."""
+    host: Callable[[GenerationConfig, str, int], Any]
+    """(config, device, jobs per encoder call) -> the `network_jobs.NetworkHost` that runs it."""
+
+
+def _poco_host(config: GenerationConfig, device: str, encoder_batch: int) -> Any:
+    from datagen.pipeline.refine.poco.network_jobs import NetworkHost
+
+    refiner = load_poco_refiner(config, device, config.poco_preset)
+    return NetworkHost(refiner.model, refiner.weights_id, device, refiner.knn_backend, encoder_batch=encoder_batch)
+
+
+HOSTED: dict[str, NetworkHosting] = {
+    "poco": NetworkHosting(lambda config: config.finetune_steps == 0, _poco_host),
+}
+"""The refiners whose network a shared host can run; a fine-tuned network is each observation's own."""
 
 
 def make_refiner(config: GenerationConfig, device: str = "cpu", network: NetworkRunner | None = None) -> Refiner:

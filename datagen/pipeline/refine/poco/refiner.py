@@ -150,11 +150,13 @@ class PocoRefiner:
         out: list[npt.NDArray[np.int64]] = []
         with self.execution():
             batch: list[_Prepared] = []
+            queued = 0
             for request in requests:
                 batch.append(self._prepared(request))
-                if sum(prepared.queries.size for prepared in batch) >= JOB_QUERIES:
+                queued += batch[-1].queries.size
+                if queued >= JOB_QUERIES:
                     out.extend(queries[prob > self.threshold] for queries, prob in self._answered(batch))
-                    batch = []
+                    batch, queued = [], 0
             out.extend(queries[prob > self.threshold] for queries, prob in self._answered(batch))
         return out
 
