@@ -7,8 +7,9 @@ cloud a reader gives is its `Source`: the refined one P(O_S) or what the input v
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
+from dataclasses import field as dataclass_field
 from typing import TYPE_CHECKING, Any, Generic, Literal, TypeVar
 
 import numpy as np
@@ -44,7 +45,9 @@ class SampleBatch(Generic[ArrayT]):
     ``SampleBatch[np.ndarray]`` as read; `tensors` gives the same arrays as torch tensors (no copy), and
     `to` moves them to a device. The optional fields are there when the dataset keeps minimum covers
     (``marginals``, ``support``) and when the covers themselves were asked for (``covers``,
-    ``cover_mask``). A DataLoader pins it (`pin_memory`) and passes it through untouched.
+    ``cover_mask``). Every field is registered in `storage.sample_fields`; one this class does not
+    declare (a plug-in's) is in ``extra``, by name. A DataLoader pins it (`pin_memory`) and passes it
+    through untouched.
     """
 
     points: ArrayT
@@ -76,18 +79,36 @@ class SampleBatch(Generic[ArrayT]):
     grid: ArrayT | None = None
     """(B, 32, 32, 32) float32 (version 3, read only when asked for): the case's occupancy
     probabilities indexed [x, y, z], 0.5 unknown (`storage.occupancy`)."""
+    extra: Mapping[str, ArrayT] = dataclass_field(default_factory=dict)
+    """Registered fields this class does not declare, by name."""
+
+    @classmethod
+    def of(cls, values: Mapping[str, ArrayT]) -> SampleBatch[ArrayT]:
+        """The batch of these fields by name: declared ones as attributes, any other in ``extra``."""
+        known = _declared()
+        return cls(
+            **{name: value for name, value in values.items() if name in known},
+            extra={name: value for name, value in sorted(values.items()) if name not in known},
+        )
 
     def __len__(self) -> int:
         return len(self.index)  # type: ignore[arg-type]
 
     def as_dict(self) -> dict[str, ArrayT]:
-        """The fields that are present, by name."""
-        found = ((field.name, getattr(self, field.name)) for field in fields(self))
-        return {name: value for name, value in found if value is not None}
+        """The fields that are present, by name (``extra``'s among them)."""
+        found = ((name, getattr(self, name)) for name in _declared())
+        return {name: value for name, value in found if value is not None} | dict(self.extra)
+
+    def field(self, name: str) -> ArrayT:
+        """Field ``name``, declared or in ``extra`` (a `KeyError` when the batch lacks it)."""
+        found = self.as_dict().get(name)
+        if found is None:
+            raise KeyError(f"this batch has no field {name!r}; it has {', '.join(self.as_dict())}")
+        return found
 
     def map(self, convert: Callable[[ArrayT], OtherT]) -> SampleBatch[OtherT]:
         """Every present field through ``convert`` (absent ones stay None)."""
-        return SampleBatch(**{name: convert(value) for name, value in self.as_dict().items()})
+        return SampleBatch.of({name: convert(value) for name, value in self.as_dict().items()})
 
     def tensors(self: SampleBatch[npt.NDArray[Any]]) -> SampleBatch[torch.Tensor]:
         """The same arrays as CPU tensors, sharing their memory."""
@@ -102,3 +123,8 @@ class SampleBatch(Generic[ArrayT]):
     def pin_memory(self: SampleBatch[torch.Tensor]) -> SampleBatch[torch.Tensor]:
         """Every tensor in pinned memory (what a DataLoader with ``pin_memory=True`` calls)."""
         return self.map(lambda tensor: tensor.pin_memory())
+
+
+def _declared() -> tuple[str, ...]:
+    """The fields `SampleBatch` holds as attributes."""
+    return tuple(found.name for found in fields(SampleBatch) if found.name != "extra")

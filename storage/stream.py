@@ -65,15 +65,13 @@ import torch
 import zarr
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
-from schemas.shard import COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, keys_array, offsets_array
+from storage.assemble import HeldSamples, finish_arrays, hold_samples, place_samples, take_samples
 from storage.batch import SampleBatch, Source, check_source
-from storage.bits import bit_rows, padded_covers
 from storage.codec import RowTaker, whole_array
-from storage.covers import listed_marginals
 from storage.location import Location, open_location
 from storage.reader import Dataset, open_dataset
-from storage.resampling import gather_clouds, key_centres, resample_many_keys, windowed_cloud
-from storage.sample_fields import SAMPLE_FIELDS, ShardRows, fields_for
+from storage.resampling import windowed_cloud
+from storage.sample_fields import COVER_FIELDS, BatchFacts, Draw, ShardRows, fields_for
 from storage.shards import ShardReader
 
 WORKER_ZARR_CONFIG = {"codec_pipeline.batch_size": 64, "threading.max_workers": 1}
@@ -88,17 +86,8 @@ streams (seed, epoch, index)."""
 Batch = SampleBatch[torch.Tensor]
 
 
-@dataclass(frozen=True)
-class _Prepared:
-    """One sample as read and resampled, waiting in the shuffle buffer."""
-
-    keys: npt.NDArray[np.int16]
-    view_state: int
-    label: int
-    covers: npt.NDArray[np.uint64] | None
-    marginals: npt.NDArray[np.float32] | None
-    fields: dict[str, npt.NDArray[Any]]
-    """Its value of every registered `storage.SampleField` the dataset has."""
+_Prepared = tuple[HeldSamples, int]
+"""A sample as read and drawn, waiting in the shuffle buffer: its shard's held values and its slot there."""
 
 
 @dataclass(frozen=True)
@@ -171,13 +160,18 @@ class ShardStream(IterableDataset[Batch]):
         self.ambiguous = dataset.has_ambiguity
         self.windowed = windowed_cloud(dataset.info.schema_version, source)
         """Clouds read by windows of their stored order (`storage.cloud_positions`)."""
-        self.field_names = [field.name for field in fields_for(dataset.info.schema_version, fields)]
-        """The registered `storage.SampleField`s it reads (names: a worker looks them up)."""
         if covers and not self.ambiguous:
             raise ValueError(
                 f"{self.url}: covers=True needs a dataset with minimum covers (version 2); this one is version "
                 f"{dataset.info.schema_version}"
             )
+        asked = [*fields, *(COVER_FIELDS if covers else ())]
+        self.sample_fields = fields_for(dataset.info.schema_version, asked, has_covers=self.ambiguous)
+        """The registered `storage.sample_fields.SampleField`s it reads and batches."""
+        self.field_names = [field.name for field in self.sample_fields]
+        self.schema_version = dataset.info.schema_version
+        self._columns = {name: dataset.values(name) for f in self.sample_fields for name in f.columns}
+        """The index columns the fields read, per dataset row."""
         self.num_points = num_points
         self.batch_size = batch_size
         self.source = source
@@ -227,7 +221,6 @@ class ShardStream(IterableDataset[Batch]):
         """The shards holding selected rows, sorted by path."""
         self._spans = {name: span for name in self.shards if (span := dataset.samples.span(name)) is not None}
         """Where a packed dataset's shards lie (none otherwise)."""
-        self._support = dataset.values("label_support").astype(np.uint64) if self.ambiguous else None
         self.num_samples = int(selected.size)
 
     # -- epochs and positions -----------------------------------------------------------------
@@ -371,81 +364,60 @@ class ShardStream(IterableDataset[Batch]):
         return state
 
     def read_shard(self, shard: int, needed: npt.NDArray[np.bool_], epoch: int) -> dict[int, _Prepared]:
-        """Read shard ``shard`` whole (verified first) and resample its rows that ``needed`` marks."""
+        """Read shard ``shard`` whole (verified first) and hold every field of its rows that ``needed``
+        marks, their clouds drawn for ``epoch`` (`storage.assemble`)."""
         relative = self.shards[shard]
         reader = ShardReader(self._reader_location(), relative, verify=True, span=self._spans.get(relative))
         arrays: dict[str, npt.NDArray[Any]] = {}
 
         def array(name: str) -> npt.NDArray[Any]:
-            """Each array decoded once per shard, whoever asks (this method or a `SampleField`)."""
+            """Each array decoded once per shard, whoever asks (any field)."""
             if name not in arrays:
                 arrays[name] = whole_array(reader, name)
             return arrays[name]
 
-        offsets = array(offsets_array(self.source))
-        masks = array(MASKS)
         rows = self._rows[shard][needed[self._rows[shard]]]
-        local = self._shard_rows[rows].astype(np.int64)
-        shard_rows = ShardRows(self.source, local, array)
-        fields = {name: SAMPLE_FIELDS[name].read(shard_rows) for name in self.field_names}
-        # What a sample carries besides its cloud, for all the shard's rows at once.
-        view_states = masks[local, VIEW_STATE_COLUMN].tolist()
-        labels = masks[local, LABEL_COLUMN].tolist()
-        starts, ends = offsets[local].tolist(), offsets[local + 1].tolist()
-        if self.ambiguous:
-            covers, cover_offsets = array(COVERS), array(offsets_array(COVERS))
-            marginals = listed_marginals(covers, cover_offsets, local, self.num_views).astype(np.float32)
-            cover_starts, cover_ends = cover_offsets[local].tolist(), cover_offsets[local + 1].tolist()
-        listed_rows = rows.tolist()
-        if self.windowed:
-            # Version 4: one window of each stored order, decoding only the key chunks the windows meet.
-            take = RowTaker(reader, keys_array(self.source)).take
-            first = offsets[local]
-            sizes = offsets[local + 1] - first
-            windows = gather_clouds(take, first, sizes, rows, self.num_points, self.seed, epoch, True)
-            resampled = list(windows)
-        else:
-            keys = array(keys_array(self.source))
-            clouds = [keys[start:end] for start, end in zip(starts, ends, strict=True)]
-            resampled = resample_many_keys(clouds, self.num_points, self.seed, epoch, listed_rows)
-        out: dict[int, _Prepared] = {}
-        for slot, row in enumerate(listed_rows):
-            out[row] = _Prepared(
-                keys=resampled[slot],
-                view_state=view_states[slot],
-                label=labels[slot],
-                covers=covers[cover_starts[slot] : cover_ends[slot]] if self.ambiguous else None,
-                marginals=marginals[slot] if self.ambiguous else None,
-                fields={name: values[slot] for name, values in fields.items()},
-            )
-        return out
+        read = ShardRows(
+            source=self.source,
+            local=self._shard_rows[rows].astype(np.int64),
+            array=array,
+            rows=rows,
+            schema_version=self.schema_version,
+            num_views=self.num_views,
+            column=lambda name: self._columns[name][rows],
+            taker=lambda name: RowTaker(reader, name).take,
+            draw=Draw(self.num_points, self.seed, epoch),
+        )
+        held = hold_samples(self.sample_fields, read)
+        return {row: (held, slot) for slot, row in enumerate(rows.tolist())}
 
     def _batch(self, rows: npt.NDArray[np.int64], prepared: list[_Prepared]) -> Batch:
         """The batch of ``prepared`` (dataset rows ``rows``), every tensor a view of one storage (see
         `_one_storage`)."""
-        width = self.num_views
-        extra: dict[str, npt.NDArray[Any]] = {}
-        if self._support is not None:
-            extra["marginals"] = np.stack([s.marginals for s in prepared if s.marginals is not None])
-            extra["support"] = bit_rows(self._support[rows], width)
-        if self.covers:
-            listed = [s.covers if s.covers is not None else np.zeros(0, np.uint64) for s in prepared]
-            extra["covers"], extra["cover_mask"] = padded_covers(listed, width)
-        for name in self.field_names:
-            extra[name] = np.stack([s.fields[name] for s in prepared])
-        small: dict[str, npt.NDArray[Any]] = {
-            "view_state": bit_rows(np.array([s.view_state for s in prepared], dtype=np.uint64), width),
-            "label": bit_rows(np.array([s.label for s in prepared], dtype=np.uint64), width),
-            "index": rows.astype(np.int64, copy=True),
-            **extra,
-        }
-        keys = np.stack([s.keys for s in prepared])
-        layout = {"points": (keys.shape, np.dtype(np.float32))} | {k: (v.shape, v.dtype) for k, v in small.items()}
+        by_shard: dict[int, tuple[HeldSamples, list[int], list[int]]] = {}
+        for position, (held, slot) in enumerate(prepared):
+            entry = by_shard.setdefault(id(held), (held, [], []))
+            entry[1].append(position)
+            entry[2].append(slot)
+        pieces = [
+            (np.asarray(positions, dtype=np.int64), take_samples(held, np.asarray(slots, dtype=np.int64)))
+            for held, positions, slots in by_shard.values()
+        ]
+        facts = BatchFacts(
+            num_views=self.num_views,
+            voxel_size=self.voxel_size,
+            grid_offset=self.grid_offset,
+            schema_version=self.schema_version,
+            source=self.source,
+            rows=rows.astype(np.int64, copy=True),
+        )
+        batch = place_samples(pieces, len(prepared))
+        values = finish_arrays(self.sample_fields, batch, np.arange(len(prepared), dtype=np.int64), facts)
+        layout = {name: (found.shape, found.dtype) for name, found in values.items()}
         tensors, arrays = _one_storage(layout, shared=get_worker_info() is not None)
-        key_centres(keys, self.voxel_size, self.grid_offset, out=arrays["points"])
-        for name, values in small.items():
-            arrays[name][...] = values
-        return SampleBatch(**tensors)
+        for name, found in values.items():
+            arrays[name][...] = found
+        return SampleBatch.of(tensors)
 
 
 def _one_storage(

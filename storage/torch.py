@@ -14,13 +14,15 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, Literal
 
+import numpy as np
 import torch
 from torch.utils.data import DataLoader, Sampler
 from torch.utils.data import Dataset as TorchDataset
 
+from storage.assemble import finish_arrays, hold_samples
 from storage.batch import SampleBatch, Source, check_source
-from storage.bits import bit_rows
 from storage.reader import Dataset, open_dataset
+from storage.sample_fields import COVER_FIELDS, BatchFacts, Draw, ShardRows, fields_for
 
 Item = dict[str, torch.Tensor]
 """One sample: the fields of a `SampleBatch` without the batch axis (what a DataLoader's default
@@ -31,12 +33,15 @@ def collate_samples(items: Sequence[Mapping[str, torch.Tensor]]) -> SampleBatch[
     """The `SampleBatch` of ``items`` (each field stacked): `OSVPDataset.loader`'s collation."""
     if not items:
         raise ValueError("no samples to collate")
-    return SampleBatch(**{name: torch.stack([item[name] for item in items]) for name in items[0]})
+    return SampleBatch.of({name: torch.stack([item[name] for item in items]) for name in items[0]})
 
 
 class OSVPDataset(TorchDataset[Item]):
     """Samples as tensors: ``points`` (num_points, 3) float32, ``view_state`` and ``label`` (n,)
-    float32 (0/1), plus ``index``; `loader` batches them as `storage.batch.SampleBatch`."""
+    float32 (0/1), ``index``, and every other registered field the dataset has (``fields`` names
+    optional ones, e.g. ``grid``), each read and made by `storage.assemble` as the other readers make
+    it; `loader` batches them as `storage.batch.SampleBatch`. The listed covers (a listing a sample,
+    padded per batch) are `storage.stream.ShardStream`'s and `storage.memory`'s."""
 
     def __init__(
         self,
@@ -47,16 +52,25 @@ class OSVPDataset(TorchDataset[Item]):
         val_fraction: float = 0.2,
         seed: int = 0,
         split_seed: int = 0,
+        fields: Sequence[str] = (),
         storage_options: dict[str, Any] | None = None,
     ) -> None:
         check_source(source)
         if num_points < 1:
             raise ValueError(f"num_points = {num_points} must be >= 1")
+        listed = [name for name in fields if name in COVER_FIELDS]
+        if listed:
+            raise ValueError(
+                f"fields: {', '.join(listed)} vary in length per sample; read them with "
+                "storage.stream.ShardStream(covers=True) or storage.memory.load_memory(...).batch(covers=True)"
+            )
         dataset = open_dataset(url, storage_options)
         if split is not None:
             train, val = dataset.split(val_fraction, split_seed)
             dataset = train if split == "train" else val
         self.dataset: Dataset = dataset
+        self.sample_fields = fields_for(dataset.info.schema_version, fields, has_covers=dataset.has_ambiguity)
+        """The registered `storage.sample_fields.SampleField`s an item has."""
         self.num_points = num_points
         self.source = source
         self.seed = seed
@@ -71,15 +85,32 @@ class OSVPDataset(TorchDataset[Item]):
 
     def __getitem__(self, index: int) -> Item:
         index = range(len(self))[index]  # negative indices as for any sequence
-        keys = self.dataset.resampled_keys(index, self.num_points, self.seed, self.epoch, self.source)
-        view_state, label = self.dataset.masks(index)
-        width = self.dataset.num_views
-        return {
-            "points": torch.from_numpy(self.dataset.centres(keys)),
-            "view_state": torch.from_numpy(bit_rows(view_state, width)),
-            "label": torch.from_numpy(bit_rows(label, width)),
-            "index": torch.tensor(index),
-        }
+        found = self.dataset
+        shard = found.shard(found.shard_of(index))
+        rows = np.array([index], dtype=np.int64)
+        read = ShardRows(
+            source=self.source,
+            local=np.array([found.row_of(index)], dtype=np.int64),
+            array=shard.array,
+            rows=rows,
+            schema_version=found.info.schema_version,
+            num_views=found.num_views,
+            column=lambda name: found.values(name)[rows],
+            taker=lambda name: shard.rows(name).take,
+            draw=Draw(self.num_points, self.seed, self.epoch),
+        )
+        config = found.info.config
+        facts = BatchFacts(
+            num_views=found.num_views,
+            voxel_size=float(config.voxel_size),
+            grid_offset=np.asarray(config.grid_offset, dtype=np.float64),
+            schema_version=found.info.schema_version,
+            source=self.source,
+            rows=rows,
+        )
+        held = hold_samples(self.sample_fields, read)
+        arrays = finish_arrays(self.sample_fields, held, np.zeros(1, dtype=np.int64), facts)
+        return {name: torch.from_numpy(np.asarray(values[0])) for name, values in arrays.items()}
 
     def loader(self, batch_size: int = 32, shuffle_seed: int | None = None, **options: Any) -> DataLoader[Item]:
         """A DataLoader of `SampleBatch` batches: in index order, or with ``shuffle_seed`` in a

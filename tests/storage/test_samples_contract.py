@@ -388,8 +388,9 @@ def test_a_fields_reader_is_the_only_place_that_names_it(covered: Path, monkeypa
         assert batch.cloud_size.tolist() == labels[batch.index.numpy()].tolist()
 
 
-def test_register_field_refuses_an_undeclared_name_and_a_second_reader() -> None:
-    with pytest.raises(ValueError, match="no SampleBatch field"):
-        register_field("gains")
+def test_register_field_refuses_a_name_that_cannot_be_one_and_a_second_reader() -> None:
+    for name in ("extra", "two words", ""):
+        with pytest.raises(ValueError, match="cannot name a sample field"):
+            register_field(name)
     with pytest.raises(ValueError, match="registered twice"):
         register_field("cloud_size")(lambda rows: rows.local)

@@ -20,6 +20,7 @@ from support.torch_data import Built, bits, cached_dataset
 from torch.utils.data import DataLoader, Subset
 
 from datagen.pipeline.keys import key_centres, unpack_keys
+from storage.memory import load_memory
 from storage.torch import OSVPDataset, ShardShuffleSampler
 
 NUM_POINTS = 256
@@ -74,10 +75,13 @@ def test_every_item_has_shapes_dtypes_and_the_stored_values(small: Built) -> Non
     ids = sample_ids(dataset)
     assert set(ids) == set(small.samples)
     n = dataset.dataset.num_views
+    # the fields every reader gives for this dataset (the registry's), as the in-memory batch has them
+    fields = set(load_memory(small.url).batch([0], NUM_POINTS, 0, 0).as_dict())
+    assert {"points", "view_state", "label", "index", "cloud_size", "marginals", "support"} <= fields
     for i in range(len(dataset)):
         item = dataset[i]
         expected = small.samples[ids[i]]
-        assert set(item) == {"points", "view_state", "label", "index"}
+        assert set(item) == fields
         assert item["points"].shape == (NUM_POINTS, 3) and item["points"].dtype == torch.float32
         assert item["view_state"].shape == (n,) and item["view_state"].dtype == torch.float32
         assert item["label"].shape == (n,) and item["label"].dtype == torch.float32

@@ -17,7 +17,7 @@ validation rows never depend on them, so every point of a curve is judged on the
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -141,20 +141,9 @@ class SampleBank:
         with_covers: bool = False,
     ) -> Batch:
         """Samples ``rows``, each resampled to ``num_points`` from stream (seed, epoch, row); with
-        marginals and support when the dataset has covers, and the padded covers if asked for."""
-        arrays = self.samples.batch(rows, num_points, seed, epoch)
-        found = self.covers
-        if found is not None:
-            index = np.asarray(rows, dtype=np.int64).reshape(-1)
-            covers, valid = found.padded(index) if with_covers else (None, None)
-            arrays = replace(
-                arrays,
-                marginals=found.marginals[index],
-                support=found.support[index],
-                covers=covers,
-                cover_mask=valid,
-            )
-        return arrays.tensors()
+        marginals and support when the dataset has covers, and the padded covers if asked for (one
+        path for every field: `storage.assemble`)."""
+        return self.samples.batch(rows, num_points, seed, epoch, covers=with_covers).tensors()
 
 
 def require_covers(bank: SampleBank, what: str) -> CoverBank:
