@@ -33,6 +33,7 @@ class TrainSpec:
 
     name: str
     target: str = "label"
+    network: str = "osvp"
     lambda_: float = 2.0
     max_objects: int | None = None
     sample_fraction: float | None = None
@@ -41,7 +42,8 @@ class TrainSpec:
     seed: int = 0
 
     def arguments(self, data: str, out: Path, steps: int, threads: int) -> list[str]:
-        found = ["--data", data, "--out", str(out), "--preset", "small", "--target", self.target]
+        found = ["--data", data, "--out", str(out), "--network", self.network, "--preset", "small"]
+        found += ["--target", self.target]
         found += ["--lambda", f"{self.lambda_:g}", "--steps", str(steps), "--split", "objects"]
         found += ["--val-fraction", f"{self.val_fraction:g}", "--seed", str(self.seed), "--threads", str(threads)]
         if self.max_objects is not None:
