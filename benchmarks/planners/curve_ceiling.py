@@ -97,27 +97,43 @@ def planner_of(point: Point, checkpoint: Path) -> str:
 
 
 def evaluate(
-    planners: Sequence[str], work: Path, config: Path, objects: Path, fixed_from: str, workers: int
+    planners: Sequence[str],
+    work: Path,
+    config: Path,
+    objects: Path,
+    fixed_from: str,
+    workers: int,
+    name: str = "evaluate",
 ) -> dict[str, Any]:
-    """One `datagen evaluate --json` of every planner beside the ceiling and the floor, cached."""
-    cache = work / "evaluate.json"
+    """One `datagen evaluate --json` of every planner beside the ceiling and the floor, cached as
+    ``work/NAME.json``."""
+    cache = work / f"{name}.json"
     if cache.exists():
         return dict(json.loads(cache.read_text()))
     command = ["datagen", "evaluate", "--objects", str(objects), "--config", str(config)]
     command += ["--rotations", "0,4", "--initial-views", "0,8,16,24", "--fixed-from", fixed_from]
     command += ["-p", "gain", "-p", "fixed", "-p", "spread", "--margins", ",".join(map(str, BUDGETS))]
     command += ["--workers", str(workers), "--json"] + [part for p in planners for part in ("-p", p)]
-    found = json.loads(run(command, work / "evaluate.log"))
+    found = json.loads(run(command, work / f"{name}.log"))
     cache.write_text(json.dumps(found) + "\n")
     return dict(found)
 
 
-def trained_on(checkpoint: Path) -> dict[str, int]:
-    """Training objects and samples of a run, from its checkpoint's own record."""
+def trained_on(checkpoint: Path) -> dict[str, Any]:
+    """Training objects and samples of a run, and its held-out figure (the metric its best epoch was
+    chosen by, on the validation objects' samples), from its checkpoint's own record."""
     from osvp.checkpoint import load_checkpoint
 
     training = load_checkpoint(checkpoint).training
-    return {"objects": int(training.get("train_objects", 0)), "samples": int(training["train_samples"])}
+    metric, epoch = str(training.get("best_metric", "")), int(training.get("best_epoch", 0))
+    history = training.get("history") or []
+    value = float(history[epoch - 1].get(metric, math.nan)) if 0 < epoch <= len(history) else math.nan
+    return {
+        "objects": int(training.get("train_objects", 0)),
+        "samples": int(training["train_samples"]),
+        "epochs": len(history),
+        "held_out": (metric, value),
+    }
 
 
 def same_planner(label: str, planner: str) -> bool:
@@ -201,8 +217,8 @@ def markdown(rows: list[dict[str, Any]], report: dict[str, Any]) -> list[str]:
     heads = " | ".join(f"captured at {v} (margin)" for v in BUDGETS)
     lines += [
         "",
-        f"| point | training objects | training samples | train min | {heads} | views to 0.95 |",
-        "|---|---:|---:|---:|" + "---:|" * len(BUDGETS) + "---:|",
+        f"| point | training objects | training samples | epochs | held out | train min | {heads} | views to 0.95 |",
+        "|---|---:|---:|---:|---|---:|" + "---:|" * len(BUDGETS) + "---:|",
     ]
     for row in rows:
         cells = []
@@ -211,10 +227,10 @@ def markdown(rows: list[dict[str, Any]], report: dict[str, Any]) -> list[str]:
             captured = margin["captured"]
             cells.append(f"{_cell(captured, '.0%')} ({_cell(margin['margin'], '+.2f')})")
         reach = row["margins"][BUDGETS[-1]].get("views_to_0.95")
+        metric, value = row["held_out"]
         lines.append(
-            f"| {row['point']} | {row['objects']} | {row['samples']} | {row['train_seconds'] / 60:.0f} | "
-            + " | ".join(cells)
-            + f" | {_cell(reach, '.2f')} |"
+            f"| {row['point']} | {row['objects']} | {row['samples']} | {row['epochs']} | {metric} {value:.3f} | "
+            f"{row['train_seconds'] / 60:.0f} | " + " | ".join(cells) + f" | {_cell(reach, '.2f')} |"
         )
     gain_reach = room[BUDGETS[-1]].get("views_to_0.95")
     lines += ["", f"The ceiling's views to 0.95: {_cell(gain_reach, '.2f')}."]
@@ -298,6 +314,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--val-fraction", type=float, default=0.03)
     parser.add_argument("--workers", type=int, default=2, help="objects evaluated side by side")
     parser.add_argument("--eval-objects", type=Path, default=WATERTIGHT)
+    parser.add_argument(
+        "--eval-name", default="evaluate", help="the evaluation's cache in --work (another for another --eval-objects)"
+    )
     parser.add_argument("--train-only", action="store_true", help="train the points, then stop (evaluate later)")
     add_report_options(parser)
     args = parser.parse_args(argv)
@@ -325,9 +344,9 @@ def main(argv: list[str] | None = None) -> int:
         trained.append((point, checkpoint, {**record, "train_seconds": seconds}))
     planners = [planner_of(point, checkpoint) for point, checkpoint in zip(points, checkpoints, strict=True)]
     fixed_from = next(iter(datasets.values()))
-    report = evaluate(planners, args.work, args.config, args.eval_objects, fixed_from, args.workers)
+    report = evaluate(planners, args.work, args.config, args.eval_objects, fixed_from, args.workers, args.eval_name)
     rows = rows_of(report, trained)
-    (args.work / "curve.json").write_text(json.dumps(rows, indent=1) + "\n")
+    (args.work / f"{args.eval_name}-curve.json").write_text(json.dumps(rows, indent=1) + "\n")
     largest: dict[str, tuple[str, int]] = {}
     for point, checkpoint, record in trained:
         if point.family not in largest or record["objects"] > largest[point.family][1]:
