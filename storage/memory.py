@@ -25,7 +25,7 @@ Depends on numpy and `storage` only: no torch here (osvp wraps the arrays as ten
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from typing import Any
 
@@ -105,7 +105,7 @@ class MemoryDataset:
     """The fields held, in `storage.sample_fields.fields_for`'s order."""
     covers: PackedCovers | None = None
     """None for a version-1 dataset, or when the load was asked to leave them out."""
-    facts_only: bool = field(default=False)
+    facts_only: bool = False
     """Held from the index alone (`load_index_facts`): no clouds."""
 
     def __len__(self) -> int:
