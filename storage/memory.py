@@ -25,7 +25,7 @@ Depends on numpy and `storage` only: no torch here (osvp wraps the arrays as ten
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Any
 
@@ -41,6 +41,7 @@ from storage.held import Positions, Ragged, Stacked
 from storage.reader import Dataset, open_dataset
 from storage.resampling import gather_clouds, windowed_cloud
 from storage.sample_fields import (
+    CORE_FIELDS,
     COVER_FIELDS,
     SAMPLE_FIELDS,
     BatchFacts,
@@ -103,6 +104,8 @@ class MemoryDataset:
     """Every held field's values (`storage.sample_fields`), by name, in position order."""
     sample_fields: tuple[SampleField, ...]
     """The fields held, in `storage.sample_fields.fields_for`'s order."""
+    asked: tuple[str, ...] = ()
+    """The optional fields the load was asked for: every batch has them."""
     covers: PackedCovers | None = None
     """None for a version-1 dataset, or when the load was asked to leave them out."""
     facts_only: bool = False
@@ -152,7 +155,7 @@ class MemoryDataset:
         return {
             f.name: self._stacked(f.name)
             for f in self.sample_fields
-            if f.finish is stacked_values and f.name not in ("index",) and isinstance(self.held[f.name], Stacked)
+            if f.name not in CORE_FIELDS and f.finish is stacked_values and isinstance(self.held[f.name], Stacked)
         }
 
     @property
@@ -196,7 +199,7 @@ class MemoryDataset:
         if self.facts_only:
             raise ValueError("samples held from the index alone (load_index_facts) have no clouds to batch")
         index = np.asarray(positions, dtype=np.int64).reshape(-1)
-        chosen = [f for f in self.sample_fields if covers or f.name not in COVER_FIELDS]
+        chosen = [f for f in self.sample_fields if not f.optional or f.name in self.asked or (covers and f.covers)]
         facts = BatchFacts(
             num_views=self.num_views,
             voxel_size=self.voxel_size,
@@ -275,7 +278,7 @@ def load_memory(
     else:
         held, kept = _empty(sample_fields, found, source, columns)
     packed = _packed_covers(found, chosen, held, universe_pieces, total) if ambiguous and "covers" in held else None
-    return _memory(found, source, chosen, held, kept, packed)
+    return replace(_memory(found, source, chosen, held, kept, packed), asked=tuple(fields))
 
 
 def _universe(cover_rows: npt.NDArray[Any], masks: npt.NDArray[Any], local: Positions) -> Ragged:

@@ -132,6 +132,8 @@ class SampleField:
     """Read only when a reader is asked for it by name (large, or costly to build)."""
     covers: bool = False
     """Needs a dataset that keeps minimum covers (version 2 and later)."""
+    padded: bool = False
+    """Its shape depends on the batch (padded to the batch's longest sample): no per-item reader gives it."""
     columns: tuple[str, ...] = ()
     """Index columns ``hold`` reads (`ShardRows.column`)."""
 
@@ -154,6 +156,7 @@ def register_field(
     *,
     finish: Finish = stacked_values,
     covers: bool = False,
+    padded: bool = False,
     columns: tuple[str, ...] = (),
 ) -> Callable[[Hold], Hold]:
     """Register the decorated ``hold`` as field ``name`` of datasets of schema version ``since`` or
@@ -165,7 +168,7 @@ def register_field(
     def register(hold: Hold) -> Hold:
         if name in SAMPLE_FIELDS:
             raise ValueError(f"sample field {name!r} is registered twice")
-        SAMPLE_FIELDS[name] = SampleField(name, since, hold, finish, optional, covers, columns)
+        SAMPLE_FIELDS[name] = SampleField(name, since, hold, finish, optional, covers, padded, columns)
         return hold
 
     return register
@@ -293,7 +296,7 @@ def _finish_covers(held: Held, positions: Positions, facts: BatchFacts) -> Value
     return padded_covers([held.of(p) for p in positions.tolist()], facts.num_views)[0]
 
 
-@register_field("covers", since=2, optional=True, covers=True, finish=_finish_covers)
+@register_field("covers", since=2, optional=True, covers=True, padded=True, finish=_finish_covers)
 def _covers(rows: ShardRows) -> Ragged:
     """(B, C, n) float32 0/1: the listed minimum covers, padded to the batch's longest listing."""
     listed = np.asarray(rows.array(COVERS), dtype=np.uint64)
@@ -308,7 +311,7 @@ def _finish_cover_mask(held: Held, positions: Positions, facts: BatchFacts) -> V
     return np.arange(most)[None, :] < counts[:, None]
 
 
-@register_field("cover_mask", since=2, optional=True, covers=True, finish=_finish_cover_mask)
+@register_field("cover_mask", since=2, optional=True, covers=True, padded=True, finish=_finish_cover_mask)
 def _cover_mask(rows: ShardRows) -> npt.NDArray[np.int64]:
     offsets = np.asarray(rows.array(offsets_array(COVERS)), dtype=np.int64)
     return offsets[rows.local + 1] - offsets[rows.local]

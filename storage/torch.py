@@ -22,7 +22,7 @@ from torch.utils.data import Dataset as TorchDataset
 from storage.assemble import finish_arrays, hold_samples
 from storage.batch import SampleBatch, Source, check_source
 from storage.reader import Dataset, open_dataset
-from storage.sample_fields import COVER_FIELDS, BatchFacts, Draw, ShardRows, fields_for
+from storage.sample_fields import SAMPLE_FIELDS, BatchFacts, Draw, ShardRows, fields_for
 
 Item = dict[str, torch.Tensor]
 """One sample: the fields of a `SampleBatch` without the batch axis (what a DataLoader's default
@@ -58,10 +58,10 @@ class OSVPDataset(TorchDataset[Item]):
         check_source(source)
         if num_points < 1:
             raise ValueError(f"num_points = {num_points} must be >= 1")
-        listed = [name for name in fields if name in COVER_FIELDS]
-        if listed:
+        padded = [name for name in fields if name in SAMPLE_FIELDS and SAMPLE_FIELDS[name].padded]
+        if padded:
             raise ValueError(
-                f"fields: {', '.join(listed)} vary in length per sample; read them with "
+                f"fields: {', '.join(padded)} vary in length per sample; read them with "
                 "storage.stream.ShardStream(covers=True) or storage.memory.load_memory(...).batch(covers=True)"
             )
         dataset = open_dataset(url, storage_options)

@@ -394,3 +394,31 @@ def test_register_field_refuses_a_name_that_cannot_be_one_and_a_second_reader() 
             register_field(name)
     with pytest.raises(ValueError, match="registered twice"):
         register_field("cloud_size")(lambda rows: rows.local)
+
+
+def test_the_held_marginals_field_is_the_cover_banks_own_count(covered: Path) -> None:
+    """osvp's CoverBank takes the marginals the load holds (the registered field, `listed_marginals`);
+    they are the ones it computes from the packed covers itself, bit for bit."""
+    covers_module = pytest.importorskip("osvp.covers")
+    memory = load_memory(str(covered))
+    assert memory.covers is not None
+    held = memory.fields["marginals"]
+    computed = covers_module.CoverBank.from_packed(memory.covers, memory.view_state_masks, memory.num_views)
+    assert held.dtype == computed.marginals.dtype == np.float32
+    assert np.array_equal(held, computed.marginals)
+    given = covers_module.CoverBank.from_packed(memory.covers, memory.view_state_masks, memory.num_views, held)
+    assert given.marginals is held or np.array_equal(given.marginals, held)
+
+
+def test_padded_fields_are_batch_only(covered: Path) -> None:
+    """The listed covers are padded per batch: the per-item reader refuses them by the field's own
+    flag, and the in-memory reader gives them when a batch asks (or the load did)."""
+    from storage.torch import OSVPDataset
+
+    with pytest.raises(ValueError, match="vary in length per sample"):
+        OSVPDataset(str(covered), fields=("covers",))
+    memory = load_memory(str(covered))
+    assert "covers" not in memory.batch([0, 1], 8, 0, 0).as_dict()
+    assert {"covers", "cover_mask"} <= set(memory.batch([0, 1], 8, 0, 0, covers=True).as_dict())
+    asked = load_memory(str(covered), fields=("covers", "cover_mask"))
+    assert {"covers", "cover_mask"} <= set(asked.batch([0, 1], 8, 0, 0).as_dict())

@@ -87,9 +87,34 @@ class CoverBank:
         )
 
     @classmethod
-    def from_packed(cls, packed: PackedCovers, view_states: npt.ArrayLike, num_views: int) -> CoverBank:
+    def from_packed(
+        cls,
+        packed: PackedCovers,
+        view_states: npt.ArrayLike,
+        num_views: int,
+        marginals: npt.NDArray[np.float32] | None = None,
+    ) -> CoverBank:
         """What `storage.memory.load_memory` read (every sample's covers and U rows as masks with
-        offsets), with the marginals `build` would compute, without reading the dataset again."""
+        offsets), with the marginals `build` would compute (``marginals``: the ones the load already
+        holds, the `storage.sample_fields` field), without reading the dataset again."""
+        if marginals is None:
+            marginals = cls._marginals(packed, num_views)
+        return cls(
+            num_views=num_views,
+            covers=packed.covers,
+            cover_offsets=packed.cover_offsets,
+            universe=packed.universe,
+            universe_offsets=packed.universe_offsets,
+            view_states=np.asarray(view_states, dtype=np.uint64).reshape(-1),
+            support=masks_to_bits(packed.support, num_views).astype(np.float32),
+            marginals=marginals.astype(np.float32, copy=False),
+            counts=packed.counts,
+            exact=packed.exact,
+        )
+
+    @staticmethod
+    def _marginals(packed: PackedCovers, num_views: int) -> npt.NDArray[np.float32]:
+        """Each sample's share of its listed covers holding each view, from the packed masks."""
         sizes = np.diff(packed.cover_offsets)
         listed = sizes > 0
         starts = packed.cover_offsets[:-1][listed]
@@ -100,18 +125,7 @@ class CoverBank:
                 held[listed, view] = np.add.reduceat(column, starts, dtype=np.int64)
         # sums of 0/1 are exact, so held / size is `cover_marginals`' mean to the last bit
         marginals = np.divide(held, sizes[:, None], out=np.zeros(held.shape), where=sizes[:, None] > 0)
-        return cls(
-            num_views=num_views,
-            covers=packed.covers,
-            cover_offsets=packed.cover_offsets,
-            universe=packed.universe,
-            universe_offsets=packed.universe_offsets,
-            view_states=np.asarray(view_states, dtype=np.uint64).reshape(-1),
-            support=masks_to_bits(packed.support, num_views).astype(np.float32),
-            marginals=marginals.astype(np.float32),
-            counts=packed.counts,
-            exact=packed.exact,
-        )
+        return marginals.astype(np.float32)
 
     def __len__(self) -> int:
         return int(self.view_states.size)

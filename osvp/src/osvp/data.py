@@ -129,7 +129,8 @@ class SampleBank:
         packed = samples.covers
         covers = None
         if packed is not None:
-            covers = CoverBank.from_packed(packed, samples.view_state_masks, samples.num_views)
+            held = samples.fields.get("marginals")  # read with the covers by the load: not computed twice
+            covers = CoverBank.from_packed(packed, samples.view_state_masks, samples.num_views, held)
         return cls(samples=samples, covers=covers)
 
     def batch(
