@@ -180,6 +180,52 @@ def objects_scan(
             print_rows(["skipped", "why"], [[str(s.path), Text(s.reason, style="red")] for s in result.skipped], report)
 
 
+def objects_split(
+    objects: Annotated[list[Path], typer.Argument(help="Objects files whose objects to split (e.g. objects scan's).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder for train.txt, val.txt and test.txt.")],
+    test: Annotated[float, typer.Option("--test", help="Share of each stratum's meshes for testing.")] = 0.2,
+    val: Annotated[float, typer.Option("--val", help="Share of each stratum's meshes for validation.")] = 0.1,
+    seed: Annotated[int, typer.Option("--seed", "-s", min=0, help="Same meshes and seed, same split.")] = 0,
+    hold: Annotated[
+        list[Path] | None,
+        typer.Option("--hold", help="Objects file of evaluation-only meshes: kept out of every set (repeatable)."),
+    ] = None,
+) -> None:
+    """Split objects by mesh into training, validation and test objects files that cannot leak: lines of
+    the same mesh bytes (variants included) share a set, each stratum (category, else the mesh's folder)
+    is split in the same shares, and meshes named by --hold files are in none."""
+    from datagen.pipeline.objects.objects_file import read_objects_file
+    from datagen.pipeline.objects.split import SPLITS, SplitShares, split_listing, split_objects
+
+    with user_errors():
+        listings = [read_objects_file(path) for path in objects]
+        held = [read_objects_file(path) for path in hold or []]
+        for listing in [*listings, *held]:
+            for error in listing.errors:
+                error_console.print(f"skipped {error}", markup=False, highlight=False, soft_wrap=True)
+        split = split_objects(listings, SplitShares(test=test, val=val), seed, held)
+        folder = out.absolute().resolve()
+        if folder.exists() and not folder.is_dir():
+            raise OutputError(f"{out}: is a file; give --out a folder for train.txt, val.txt and test.txt")
+        sources = " ".join(relative_path_text(path, folder) for path in objects)
+        for name in SPLITS:
+            header = f"{name} objects of {sources}: seed {seed}, test {test:g}, val {val:g} (datagen objects split)"
+            _write_text(folder / f"{name}.txt", split_listing(split.sets[name], folder, header))
+        rows: list[list[Cell]] = [
+            [stratum, *(str(counts[name]) for name in SPLITS)] for stratum, counts in sorted(split.strata.items())
+        ]
+        rows.append(["all meshes", *(str(sum(c[name] for c in split.strata.values())) for name in SPLITS)])
+        rows.append(["all lines", *(str(len(split.sets[name])) for name in SPLITS)])
+        say(f"wrote {out}/{{train,val,test}}.txt; {len(split.held)} lines held out by --hold")
+        print_rows(["stratum", *SPLITS], rows)
+
+
+def relative_path_text(path: Path, folder: Path) -> str:
+    from datagen.pipeline.objects.objects_file import relative_path
+
+    return relative_path(path.absolute(), folder)
+
+
 def _mesh_check(config: GenerationConfig) -> Callable[[Path], str | None]:
     """``objects scan --check``: the one-line reason a mesh file cannot be made into an object."""
     from datagen.pipeline.objects.prepare import prepare_object

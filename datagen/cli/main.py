@@ -38,6 +38,7 @@ objects_app.command("show")(inputs.objects_show)
 objects_app.command("synth")(inputs.objects_synth)
 objects_app.command("variants")(inputs.objects_variants)
 objects_app.command("scan")(inputs.objects_scan)
+objects_app.command("split")(inputs.objects_split)
 app.command("scan")(inputs.scan)
 
 poco_app.command("train")(poco.poco_train)

@@ -222,3 +222,39 @@ def test_the_default_target_is_each_networks_best_measured_one(tmp_path: Path) -
     assert (plain.target, plain.lambda_, plain.network) == ("mincover", 2.0, "osvp")
     assert TrainOptions(data="unused", out=tmp_path, network="nbvnet").target == "best_view"
     assert TrainOptions(data="unused", out=tmp_path, network="scvp", target="label").target == "label"
+
+
+def test_init_starts_from_a_checkpoints_weights_and_refuses_another_network(
+    bank: SampleBank, dataset_url: str, tmp_path: Path
+) -> None:
+    from osvp.train import _start, file_sha256
+
+    train(options(dataset_url, tmp_path / "pre"), bank=bank)
+    pre = load_checkpoint(tmp_path / "pre" / "last.pt")
+    tuned = options(dataset_url, tmp_path / "tuned", init=tmp_path / "pre" / "last.pt", seed=9)
+    network, *_ = _start(tuned, bank, tuned.num_points)
+    for key, value in network.state_dict().items():
+        assert torch.equal(value, pre.data["model"][key]), key
+    train(tuned, bank=bank)
+    recorded = load_checkpoint(tmp_path / "tuned" / "last.pt").training
+    assert recorded["options"]["init"] == file_sha256(tmp_path / "pre" / "last.pt")
+    assert recorded["options"] == tuned.identity()
+    # The generation config of the training data travels with the weights, for `datagen evaluate`.
+    assert load_checkpoint(tmp_path / "tuned" / "last.pt").data["generation_config"]["refiner"] == "none"
+    grid = options(dataset_url, tmp_path / "grid", network="nbvnet", init=tmp_path / "pre" / "last.pt")
+    with pytest.raises(CheckpointError, match="another size|same network"):
+        train(grid, bank=bank)
+    with pytest.raises(DataError, match="--init"):
+        train(options(dataset_url, tmp_path / "both", init=tmp_path / "pre" / "last.pt", resume=True), bank=bank)
+
+
+def test_val_data_validates_on_another_dataset_and_trains_on_all_of_data(
+    bank: SampleBank, dataset_url: str, tmp_path: Path
+) -> None:
+    outcome = train(options(dataset_url, tmp_path / "run", val_data=dataset_url), bank=bank)
+    record = load_checkpoint(tmp_path / "run" / "last.pt").training
+    assert record["train_samples"] == record["val_samples"] == len(bank)
+    assert record["options"]["val_data"] == dataset_url
+    split = train(options(dataset_url, tmp_path / "split"), bank=bank)
+    assert load_checkpoint(tmp_path / "split" / "last.pt").training["val_samples"] < len(bank)
+    assert outcome.history[0]["val_loss"] != split.history[0]["val_loss"]

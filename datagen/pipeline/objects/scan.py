@@ -300,7 +300,8 @@ def _unique_names(paths: list[Path]) -> list[str]:
 def scan_listing(result: ScanResult, folder: Path | None) -> str:
     """The objects file of ``result``: one ``PATH name=NAME [category=C]`` line per mesh, paths relative to
     ``folder`` (where the file is written) or absolute when it is None (printed)."""
-    lines = [f"# {len(result.meshes)} meshes under {result.root} (datagen objects scan)"]
+    root = result.root.as_posix() if folder is None else relative_path(result.root, folder)
+    lines = [f"# {len(result.meshes)} meshes under {root} (datagen objects scan)"]
     for mesh in result.meshes:
         target = mesh.path.as_posix() if folder is None else relative_path(mesh.path, folder)
         tokens = [target, f"name={mesh.name}"]

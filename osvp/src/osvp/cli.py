@@ -100,6 +100,19 @@ def _parser() -> argparse.ArgumentParser:
             help="validation by held-out samples (the paper's) or held-out objects (recommended for learning curves)",
         )
         sub.add_argument("--val-fraction", type=float, default=0.2)
+        sub.add_argument(
+            "--val-data",
+            default=None,
+            help="validate on every sample of this dataset (e.g. a split's validation objects, made apart) and train "
+            "on all of --data; best.pt is then chosen on objects the run never trained on",
+        )
+        sub.add_argument(
+            "--init",
+            type=Path,
+            default=None,
+            help="start from this checkpoint's weights (the same --network and --preset): fine-tune a planner "
+            "pre-trained on other data; the optimiser and its learning rate start afresh",
+        )
         sub.add_argument("--source", choices=("points", "observed"), default="points")
         sub.add_argument("--resume", action="store_true", help="continue the run in --out from its last epoch")
         sub.add_argument(
@@ -226,6 +239,8 @@ def _options(args: argparse.Namespace, out: Path, lambda_: float, resume: bool) 
         shuffle_buffer=args.shuffle_buffer,
         val_cap=args.val_cap,
         fit_rows=args.fit_rows,
+        val_data=args.val_data,
+        init=args.init,
     )
 
 
@@ -272,6 +287,11 @@ def _eval(args: argparse.Namespace) -> int:
     if args.split != "all" and not same_data:
         raise DataError(
             f"--split {args.split} needs the dataset {checkpoint.path} was trained on; give it or use --split all"
+        )
+    if args.split == "val" and options.val_data is not None:
+        raise DataError(
+            f"{checkpoint.path} validated on another dataset ({options.val_data}); score it with "
+            f"--data {options.val_data} --split all"
         )
     everything = np.arange(len(bank), dtype=np.int64)
     # The run's own rows on its dataset; on another one (--split all only) every sample, also for the prior.
@@ -346,6 +366,7 @@ def _stored_options(checkpoint: Checkpoint, args: argparse.Namespace) -> TrainOp
         preset=checkpoint.preset.name,
         max_objects=stored.get("max_objects"),
         sample_fraction=float(stored.get("sample_fraction", 1.0)),
+        val_data=stored.get("val_data"),
     )
 
 

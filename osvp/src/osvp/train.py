@@ -24,6 +24,7 @@ the validation rows (a seeded draw). A streamed run resumed from ``last.pt`` con
 
 from __future__ import annotations
 
+import hashlib
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -128,6 +129,12 @@ class TrainOptions:
     fit_rows: int = 0
     """Also score this many training rows (a seeded draw) every epoch, the ``fit_`` columns: how well
     the network fits what it trains on, beside the held-out figures (0: none)."""
+    val_data: str | None = None
+    """Validate on every sample of this dataset (held-out objects made apart, e.g. a split's
+    validation objects) instead of a split of ``data``, which is then trained on whole."""
+    init: Path | None = None
+    """Start from this checkpoint's weights (the same network, preset and view count): fine-tuning
+    a pre-trained planner. The optimiser starts afresh."""
 
     def for_samples(self, train_samples: int) -> TrainOptions:
         """The options for a training set of ``train_samples``: with `steps`, as many epochs as give
@@ -180,6 +187,8 @@ class TrainOptions:
             raise DataError(f"fit rows {self.fit_rows} must be >= 0 (0: none)")
         if self.val_cap < 0:
             raise DataError(f"validation cap {self.val_cap} must be >= 0 (0: every validation sample)")
+        if self.init is not None and self.resume:
+            raise DataError("--init starts a new run from a checkpoint's weights; --resume continues one: give one")
         if self.device.startswith("cuda") and not torch.cuda.is_available():
             raise DataError(f"device {self.device!r}: CUDA is not available here; use --device cpu")
 
@@ -194,6 +203,11 @@ class TrainOptions:
             data.pop("network")
         for free in ("out", "resume", "epochs", "device", "memory_limit_gb", "fit_rows"):
             data.pop(free)
+        for added in ("val_data", "init"):  # what runs before these options existed recorded
+            if data[added] is None:
+                data.pop(added)
+        if self.init is not None:  # the weights it started from, by content: a moved file resumes alike
+            data["init"] = file_sha256(self.init)
         if not self.stream:  # in memory: what runs before streaming existed recorded
             for unused in ("stream", "workers", "shuffle_buffer", "val_cap"):
                 data.pop(unused)
@@ -236,8 +250,12 @@ def selection_metric(bank: SampleBank, target: str = "label") -> str:
 
 def run_rows(bank: SampleBank, options: TrainOptions) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
     """(training rows, validation rows) of a run: the split, then the training subset
-    (``max_objects``, ``sample_fraction``); validation never depends on the subset."""
-    train_side, val_rows = split_rows(bank, options.split, options.val_fraction, options.seed)
+    (``max_objects``, ``sample_fraction``); validation never depends on the subset. With
+    ``val_data`` every row of ``bank`` is on the training side and none validates."""
+    if options.val_data is not None:
+        train_side, val_rows = np.arange(len(bank), dtype=np.int64), np.zeros(0, dtype=np.int64)
+    else:
+        train_side, val_rows = split_rows(bank, options.split, options.val_fraction, options.seed)
     subset = training_subset(bank, train_side, options.max_objects, options.sample_fraction, options.seed)
     return subset, val_rows
 
@@ -291,8 +309,12 @@ def train(
         dataset = open_dataset(options.data, needs)
         bank = index_bank(dataset, options.source)
         train_rows, val_rows = run_rows(bank, options)
+        val_dataset = dataset
+        if options.val_data is not None:
+            val_dataset = open_dataset(options.val_data, needs)
+            val_rows = np.arange(len(val_dataset), dtype=np.int64)
         # Validation in memory: its rows only (a bank of their own, position p = row val_rows[p]).
-        val_bank = rows_bank(dataset, cap_rows(val_rows, options.val_cap, options.seed), options.source, fields)
+        val_bank = rows_bank(val_dataset, cap_rows(val_rows, options.val_cap, options.seed), options.source, fields)
         val_rows = np.arange(len(val_bank), dtype=np.int64)
         streamed = StreamedRows(
             dataset,
@@ -309,15 +331,25 @@ def train(
         )
     else:
         bank = val_bank = bank or SampleBank.load(options.data, options.source, covers_for=needs, fields=fields)
+        if options.val_data is not None:
+            val_bank = SampleBank.load(options.val_data, options.source, covers_for=needs, fields=fields)
+    if val_bank.num_views != bank.num_views:
+        raise DataError(
+            f"{options.val_data}: has {val_bank.num_views} views, the training data {bank.num_views}; "
+            "validate on a dataset of the same view space"
+        )
     if needs is not None:
         require_covers(val_bank, needs)
     if streamed is None:
         train_rows, val_rows = run_rows(bank, options)
+        if options.val_data is not None:
+            val_rows = np.arange(len(val_bank), dtype=np.int64)
     options = options.for_samples(len(train_rows))
     fit = fit_probe(dataset, bank, train_rows, options, fields)
     train_objects = len({bank.object_ids[i] for i in train_rows.tolist()})
     val_covers = val_bank.covers.take(val_rows) if val_bank.covers is not None else None
     network, optimiser, scheduler, start, history, best = _start(options, bank, options.num_points)
+    generation = training_config(options.data)
     metric = selection_metric(val_bank, options.target)
     best_score = max((row[metric] for row in history), default=-1.0)
     for epoch in range(start, options.epochs):
@@ -344,7 +376,7 @@ def train(
         if improved:
             best_score, best = row[metric], epoch + 1
         record = RunRecord(epoch + 1, history, best, metric, tuned, len(train_rows), len(val_rows), train_objects)
-        state = _state(options, bank, network, optimiser, scheduler, record)
+        state = _state(options, bank, network, optimiser, scheduler, record) | {"generation_config": generation}
         if improved:
             save_checkpoint(options.out / BEST, state)
         save_checkpoint(options.out / LAST, state)
@@ -564,9 +596,39 @@ def _start(
     with seeded_torch(stream_seed(options.seed, 0, 0), "cpu"):
         family = options.architecture
         network = family.build(family.preset(options.preset), bank.num_views)
+    if options.init is not None:
+        network.load_state_dict(_initial_weights(options, bank.num_views))
     network = network.to(options.device)
     optimiser, scheduler = _optimiser(network, options)
     return network, optimiser, scheduler, 0, [], 0
+
+
+def _initial_weights(options: TrainOptions, num_views: int) -> dict[str, torch.Tensor]:
+    """The weights of ``options.init``, refused in one line when they are another network's."""
+    assert options.init is not None
+    start = load_checkpoint(options.init)
+    start.require(num_views, what="the training data")
+    family = options.architecture
+    if start.architecture.name != family.name or start.preset != family.preset(options.preset):
+        raise CheckpointError(
+            f"{options.init}: holds a {start.architecture.name} network of another size than --network "
+            f"{family.name} --preset {options.preset}; give a checkpoint of the same network to start from"
+        )
+    model: dict[str, torch.Tensor] = start.data["model"]
+    return model
+
+
+def training_config(url: str) -> dict[str, Any]:
+    """The generation config of the dataset at ``url`` (its ``dataset.json``) as plain data: what a
+    checkpoint records so that ``datagen evaluate`` images the objects as its training data was."""
+    config: dict[str, Any] = storage.open_dataset(url).info.config.model_dump(mode="json")
+    return config
+
+
+def file_sha256(path: Path) -> str:
+    """The sha256 of a file's bytes (a checkpoint started from, a shipped planner)."""
+    with Path(path).open("rb") as handle:
+        return hashlib.file_digest(handle, "sha256").hexdigest()
 
 
 def _optimiser(network: nn.Module, options: TrainOptions) -> tuple[torch.optim.Optimizer, Any]:

@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# The datasets of issue 49, made with the service itself into WORK (default ../real-work beside the checkout):
+#   real-{train,val}-none  the split's training and validation objects, 8 rotations, refiner none, default voxel
+#   synth1000-none         1,000 synthetic objects (seed 23, the learning curve's), 2 rotations, refiner none
+#   real-{train,val}-poco  the same real objects at the paper's settings (default config: POCO, 8 rotations)
+# Each line is one `datagen submit`; running the script again resumes what is not done (committed tasks
+# are kept, never recomputed). The none datasets come first: they train the next-view planners in minutes,
+# whose labels do not depend on the refiner (docs/pipeline.md section 8.1).
+set -euo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+work="${1:-$here/../../../../real-work}"
+mkdir -p "$work"
+printf 'refiner = "none"\n' > "$work/none.toml"
+printf 'refiner = "none"\nrotations = 2\n' > "$work/synth.toml"
+submit() { echo "== $(date -u +%FT%TZ) $*"; datagen submit "$@"; }
+submit --objects "$here/train.txt" --config "$work/none.toml" --out "$work/real-train-none"
+submit --objects "$here/val.txt" --config "$work/none.toml" --out "$work/real-val-none"
+[ -f "$work/synth/objects.txt" ] || datagen objects synth --count 1000 --seed 23 --out "$work/synth"
+submit --objects "$work/synth/objects.txt" --config "$work/synth.toml" --out "$work/synth1000-none"
+submit --objects "$here/val.txt" --out "$work/real-val-poco"
+submit --objects "$here/train.txt" --out "$work/real-train-poco"
+echo "== $(date -u +%FT%TZ) done"
