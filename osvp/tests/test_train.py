@@ -242,7 +242,7 @@ def test_init_starts_from_a_checkpoints_weights_and_refuses_another_network(
     # The generation config of the training data travels with the weights, for `datagen evaluate`.
     assert load_checkpoint(tmp_path / "tuned" / "last.pt").data["generation_config"]["refiner"] == "none"
     grid = options(dataset_url, tmp_path / "grid", network="nbvnet", init=tmp_path / "pre" / "last.pt")
-    with pytest.raises(CheckpointError, match="another size|same network"):
+    with pytest.raises(CheckpointError, match=r"another size|same network"):
         train(grid, bank=bank)
     with pytest.raises(DataError, match="--init"):
         train(options(dataset_url, tmp_path / "both", init=tmp_path / "pre" / "last.pt", resume=True), bank=bank)
