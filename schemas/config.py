@@ -120,6 +120,19 @@ def stored_config(data: Any) -> Any:
     return data
 
 
+SCENE_FIELDS = (
+    "voxel_size",
+    "grid_offset",
+    "size_range",
+    "mm_threshold",
+    "gt_density",
+    "view_space",
+    "camera",
+    "imaging",
+)
+"""`GenerationConfig.scene_identity`'s fields: object preparation, ground truth, the views and imaging."""
+
+
 class GenerationConfig(_Frozen):
     """Every setting that changes a sample (hashed into every sample and into ``dataset.json``)."""
 
@@ -279,6 +292,13 @@ class GenerationConfig(_Frozen):
         if self.refiner == "poco" or self.poco_weights != BUILTIN_POCO_WEIGHTS:
             data["poco_weights"] = "sha256:" + file_sha256(self.poco_weights_path())
         return data
+
+    def scene_identity(self) -> dict[str, Any]:
+        """The fields that decide what each view sees of a prepared object (`SCENE_FIELDS`, files by
+        content): two configs that agree here image every object alike, whatever their refiner, labels
+        or rotations. A trained planner expects the scene identity of its training data."""
+        data = self.canonical_dict()
+        return {name: data[name] for name in SCENE_FIELDS}
 
     def config_hash(self) -> str:
         """sha256 of the canonical JSON (sorted keys, no spaces, floats by repr)."""

@@ -9,9 +9,10 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperCommand
 
 from datagen.cli.common import ConfigOption, dataset_options, error_console, progress_bar, say, user_errors
 from datagen.config_io import load_config
@@ -20,17 +21,28 @@ from datagen.errors import InvalidArgument
 EXIT_SOME_FAILED = 1
 
 
-def _planner_help() -> str:
+def _planner_help(load: bool = False) -> str:
     """``--planner``'s help, written from the planner registry (`datagen.evaluate.planners`: every built-in
-    kind's usage and every installed plug-in)."""
+    kind's usage and every installed plug-in; with ``load``, the names each plug-in offers)."""
     from datagen.evaluate.planners import planner_help
 
     return (
-        f"{planner_help()}. A plugin's scorer is played one-shot (its views taken at once) or, when it is a "
+        f"{planner_help(load=load)}. A plugin's scorer is played one-shot (its views taken at once) or, when it is a "
         "next-best-view scorer, step by step: asked again after every view with the cloud, occupancy grid and "
         "view state observed so far, visiting its best open view, for 10 views in all or --budget-views K, or "
         "until every open view scores 0. Repeat for several."
     )
+
+
+class EvaluateCommand(TyperCommand):
+    """``datagen evaluate``: its --help lists the planners each plug-in offers (``shipped:nbv``), which
+    loads the plug-ins; only help being shown pays for that, not every command's start."""
+
+    def format_help(self, ctx: Any, formatter: Any) -> None:
+        for param in self.params:
+            if param.name == "planner":
+                param.help = _planner_help(load=True)  # type: ignore[attr-defined]
+        super().format_help(ctx, formatter)
 
 
 def _refiner_help() -> str:
@@ -111,7 +123,15 @@ def evaluate(
     from datagen.evaluate.run import EvaluationSpec, ObjectOutcome, check_planners, evaluate, parse_selection
 
     with user_errors(fixed_from):
-        resolved = load_config(config)
+        from datagen.evaluate.planner_config import resolve_evaluation_config
+
+        chosen = resolve_evaluation_config(load_config(config) if config is not None else None, planner, refiner)
+        resolved = chosen.config
+        if chosen.source.startswith("planner") and not as_json:
+            say(
+                f"imaging as {chosen.source} was trained (config {resolved.config_hash()[:12]}, refiners "
+                f"{', '.join(chosen.refiners)}); --config must image alike"
+            )
         if budget_views is not None and budget_views < 1:
             raise InvalidArgument(f"--budget-views {budget_views}: give at least 1 (the initial view counts)")
         if budget_moves is not None and not budget_moves > 0:
@@ -125,16 +145,20 @@ def evaluate(
         if fixed_from is None:
             check_planners(planner, PlannerContext(resolved))  # a fixed planner: one line naming --fixed-from
         else:
-            from datagen.evaluate.fixed import fixed_plans
+            from datagen.evaluate.fixed_cache import cached_fixed_plans
+            from datagen.settings import RunSettings
 
-            fixed = fixed_plans(fixed_from, chosen_views, dataset_options(fixed_from))
+            cache = RunSettings().home / "cache" / "fixed-plans"
+            fixed, remembered = cached_fixed_plans(fixed_from, chosen_views, cache, dataset_options(fixed_from))
             check_planners(planner, PlannerContext(resolved, fixed))
             if not as_json:
                 for line in fixed.summary():
                     say(line)
+                if remembered:
+                    say(f"  (chosen before for these tasks and initial views; kept in {cache})")
         spec = EvaluationSpec(
             planners=tuple(planner),
-            refiners=tuple(refiner or [resolved.refiner]),
+            refiners=chosen.refiners,
             rotations=chosen_rotations,
             initial_views=chosen_views,
             budget=Budget(views=budget_views, metres=budget_moves),

@@ -28,7 +28,7 @@ app.command("resume")(jobs.resume)
 app.command("status")(jobs.status)
 app.command("cancel")(jobs.cancel)
 app.command("serve")(jobs.serve)
-app.command("evaluate")(evaluate.evaluate)
+app.command("evaluate", cls=evaluate.EvaluateCommand)(evaluate.evaluate)
 app.add_typer(shards_app, name="shards")
 app.add_typer(poco_app, name="poco")
 

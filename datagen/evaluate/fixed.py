@@ -112,11 +112,31 @@ class FixedPlans:
             "source": self.source,
             "tasks": self.tasks,
             "cases": self.cases,
-            "plans": {
-                str(size): {"views": list(p.views), "mean_coverage": p.mean_coverage, "exact": p.exact}
-                for size, p in sorted(self.by_size.items())
-            },
+            "plans": {str(size): _plan_dict(p) for size, p in sorted(self.by_size.items())},
         }
+
+    def to_record(self) -> dict[str, Any]:
+        """Everything the plans hold, as plain data (`from_record` reads it back): what the cache keeps."""
+        without = [[size, view, _plan_dict(p)] for (size, view), p in sorted(self.without.items())]
+        return {**self.as_dict(), "num_views": self.num_views, "without": without}
+
+    @classmethod
+    def from_record(cls, data: dict[str, Any], source: str) -> FixedPlans:
+        def plan(item: dict[str, Any]) -> FixedPlan:
+            return FixedPlan(tuple(int(v) for v in item["views"]), float(item["mean_coverage"]), bool(item["exact"]))
+
+        return cls(
+            source=source,
+            tasks=int(data["tasks"]),
+            cases=int(data["cases"]),
+            num_views=int(data["num_views"]),
+            by_size={int(size): plan(item) for size, item in data["plans"].items()},
+            without={(int(size), int(view)): plan(item) for size, view, item in data["without"]},
+        )
+
+
+def _plan_dict(plan: FixedPlan) -> dict[str, Any]:
+    return {"views": list(plan.views), "mean_coverage": plan.mean_coverage, "exact": plan.exact}
 
 
 @dataclass(frozen=True)
@@ -249,11 +269,6 @@ def choose_fixed_plans(
         if view in by_size[size].views
     }
     return FixedPlans(source, weights.tasks, weights.cases, n, by_size, without)
-
-
-def fixed_plans(url: str, initial_views: tuple[int, ...], storage_options: dict[str, Any] | None = None) -> FixedPlans:
-    """`choose_fixed_plans` on the dataset at ``url``."""
-    return choose_fixed_plans(case_weights(url, storage_options), url, initial_views)
 
 
 def _greedy(search: CoverageSearch, size: int) -> CoverageAnswer:

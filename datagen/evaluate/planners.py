@@ -118,6 +118,8 @@ class PlannerKind:
     usage: str
     """How to write it, e.g. ``greedy, greedy:K``."""
     source: str = "built-in"
+    plugin: EntryPoint | None = None
+    """The entry point of a plug-in kind (None for a built-in)."""
 
 
 BUILTIN_PLANNERS: dict[str, PlannerKind] = {}
@@ -144,8 +146,23 @@ def planner_kinds() -> dict[str, PlannerKind]:
         if plugin.name not in kinds:
             dist = plugin.dist
             source = f"distribution {dist.name} {dist.version}" if dist is not None else "a plugin"
-            kinds[plugin.name] = PlannerKind(plugin.name, _plugin_builder(plugin), f"{plugin.name}:ARG", source)
+            kinds[plugin.name] = PlannerKind(plugin.name, _plugin_builder(plugin), f"{plugin.name}:ARG", source, plugin)
     return kinds
+
+
+def plugin_usage(kind: PlannerKind) -> str:
+    """How to write a plug-in's planners: ``NAME:C`` for each of its factory's ``choices`` (osvp's
+    ``shipped:nbv``), else ``NAME:ARG``. Loads the plug-in, so only help being shown asks for it; one
+    that cannot be loaded keeps ``NAME:ARG`` (naming it fails with its own line)."""
+    if kind.plugin is None:
+        return kind.usage
+    try:
+        choices = getattr(kind.plugin.load(), "choices", None)
+    except Exception:  # a broken third-party plug-in must not break --help
+        return kind.usage
+    if not choices:
+        return kind.usage
+    return ", ".join(f"{kind.name}:{choice}" for choice in choices)
 
 
 def installed_plugins() -> dict[str, PlannerKind]:
@@ -161,11 +178,12 @@ def lookup_planner(name: str, spec: str | None = None) -> PlannerKind:
     return kinds[name]
 
 
-def planner_help(kinds: dict[str, PlannerKind] | None = None) -> str:
-    """The planners one can name: the built-ins' usages, then ``NAME:ARG`` of each installed plugin."""
+def planner_help(kinds: dict[str, PlannerKind] | None = None, load: bool = False) -> str:
+    """The planners one can name: the built-ins' usages, then ``NAME:ARG`` of each installed plugin
+    (with ``load``, the names each plugin offers: `plugin_usage`)."""
     kinds = planner_kinds() if kinds is None else kinds
     builtin = ", ".join(kind.usage for kind in kinds.values() if kind.source == "built-in")
-    plugins = sorted(kind.usage for kind in kinds.values() if kind.source != "built-in")
+    plugins = sorted(plugin_usage(kind) if load else kind.usage for kind in kinds.values() if kind.source != "built-in")
     listed = ", ".join(plugins) if plugins else f"none installed in {PLANNER_ENTRY_POINTS!r}"
     return f"{builtin}, or a plugin's NAME:ARG or NAME+DECODING:ARG ({listed})"
 

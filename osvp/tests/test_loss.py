@@ -129,7 +129,9 @@ def test_target_loss_dispatches_and_names_what_is_missing() -> None:
         target_loss("best_view", logits, batch, 1.25)
     with pytest.raises(ValueError, match="unknown target 'nope'; choose label, marginal, mincover, support, gain"):
         target_loss("nope", logits, batch, 1.25)
-    assert set(TARGETS) - set(AMBIGUITY_TARGETS) == {"label", "gain", "best_view"}
+    with pytest.raises(ValueError, match=r"target 'near_best' needs every view's gain \(a version-3 dataset\)"):
+        target_loss("near_best", logits, batch, 1.25)
+    assert set(TARGETS) - set(AMBIGUITY_TARGETS) == {"label", "gain", "best_view", "near_best"}
 
 
 def test_the_gain_target_is_the_mean_squared_error_of_the_predicted_shares() -> None:
@@ -163,3 +165,30 @@ def test_the_best_view_target_is_the_cross_entropy_of_the_class_among_the_open_v
         and float(trainable.grad[0, 1]) == 0.0
         and float(trainable.grad[2].abs().sum()) == 0.0
     )
+
+
+def test_the_near_best_target_weighs_each_open_view_by_its_gain_against_the_best_by_hand() -> None:
+    """Soft classes exp((g - g_best) / (0.1 g_best)) over the open views; a view that sees nothing new
+    next to one that does is (almost) NBVNet's class; scaling every gain changes nothing; a case with
+    nothing left adds nothing."""
+    from osvp.loss import best_view_loss, near_best_loss
+
+    logits = torch.tensor([[1.0, 2.0, 0.5, -1.0], [0.0, 0.3, 3.0, 1.0], [5.0, 1.0, 1.0, 1.0]], dtype=torch.float64)
+    state = torch.tensor([[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, 0, 0]], dtype=torch.float64)
+    gains = torch.tensor([[0.2, 0.5, 0.18, 0.0], [0.9, 0.1, 0.1, 0.05], [0, 0, 0, 0]], dtype=torch.float64)
+    # sample 0: open views 0, 2, 3 with gains 0.2, 0.18, 0 -> weights 1, e^-1, e^-10
+    weights = [1.0, math.exp(-1.0), math.exp(-10.0)]
+    soft = [w / sum(weights) for w in weights]
+    log_p = [v - math.log(sum(math.exp(x) for x in (1.0, 0.5, -1.0))) for v in (1.0, 0.5, -1.0)]
+    first = -sum(q * lp for q, lp in zip(soft, log_p, strict=True))
+    # sample 1: open views 1, 2, 3 with gains 0.1, 0.1, 0.05 -> weights 1, 1, e^-5 (view 0, taken, is ignored)
+    weights = [1.0, 1.0, math.exp(-5.0)]
+    soft = [w / sum(weights) for w in weights]
+    log_p = [v - math.log(sum(math.exp(x) for x in (0.3, 3.0, 1.0))) for v in (0.3, 3.0, 1.0)]
+    second = -sum(q * lp for q, lp in zip(soft, log_p, strict=True))
+    assert float(near_best_loss(logits, state, gains)) == pytest.approx((first + second) / 2, rel=1e-9)
+    assert float(near_best_loss(logits, state, 3.0 * gains)) == pytest.approx((first + second) / 2, rel=1e-9)
+    one_hot = torch.tensor([[0.0, 0.0, 0.4, 0.0]], dtype=torch.float64)
+    alone = near_best_loss(logits[:1], state[:1], one_hot)
+    assert float(alone) == pytest.approx(float(best_view_loss(logits[:1], state[:1], torch.tensor([2]))), rel=1e-4)
+    assert float(near_best_loss(logits[2:], state[2:], gains[2:])) == 0.0

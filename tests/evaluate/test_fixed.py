@@ -171,3 +171,38 @@ def test_a_hundred_thousand_tasks_keep_the_search_within_int64() -> None:
     plans = choose_fixed_plans(found, "made up", sizes=range(1, 6), node_budget=20_000)
     assert sorted(plans.by_size) == [1, 2, 3, 4, 5]
     assert all(len(plan.views) == size and plan.mean_coverage > 0 for size, plan in plans.by_size.items())
+
+
+def test_fixed_plans_are_kept_per_dataset_and_chosen_again_when_the_tasks_change(
+    training: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The cache (`datagen.evaluate.fixed_cache`) gives back exactly the plans chosen; another set of
+    initial views or a dataset with other committed tasks is another key; a damaged file is chosen again."""
+    import shutil
+
+    from datagen.evaluate import fixed_cache
+
+    chosen = []
+    real = fixed_cache.choose_fixed_plans
+
+    def counting(*args: object, **kwargs: object):  # type: ignore[no-untyped-def]
+        chosen.append(1)
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(fixed_cache, "choose_fixed_plans", counting)
+    cache = tmp_path / "cache"
+    first, remembered = fixed_cache.cached_fixed_plans(training, (0, 8), cache)
+    again, remembered_again = fixed_cache.cached_fixed_plans(training, (0, 8), cache)
+    assert (remembered, remembered_again, len(chosen)) == (False, True, 1)
+    assert again.to_record() == first.to_record() and again.without == first.without
+    fixed_cache.cached_fixed_plans(training, (0, 9), cache)
+    assert len(chosen) == 2
+    other = tmp_path / "other"
+    shutil.copytree(training, other)
+    assert fixed_cache.dataset_key(str(other), (0, 8)) == fixed_cache.dataset_key(training, (0, 8))
+    fx.build_dataset(str(tmp_path / "more"), attempt_id="another-attempt", finalise_index=True)
+    assert fixed_cache.dataset_key(str(tmp_path / "more"), (0, 8)) != fixed_cache.dataset_key(training, (0, 8))
+    for path in cache.iterdir():
+        path.write_text("{not json")
+    repaired, remembered = fixed_cache.cached_fixed_plans(training, (0, 8), cache)
+    assert not remembered and repaired.to_record() == first.to_record() and len(chosen) == 3

@@ -83,6 +83,12 @@ class Checkpoint:
         return str(self.training["options"].get("target", "label"))
 
     @property
+    def generation_config(self) -> dict[str, Any] | None:
+        """The generation config (plain data) of the dataset the run trained on; None before it was recorded."""
+        stored = self.data.get("generation_config")
+        return dict(stored) if isinstance(stored, dict) else None
+
+    @property
     def tuned_threshold(self) -> float | None:
         """The ``tuned`` decoding's threshold, chosen on the run's validation samples; None before version 2."""
         value = self.data.get("tuned_threshold")

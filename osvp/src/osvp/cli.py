@@ -48,6 +48,7 @@ SELECTION = {
     "f1": "F1 (label bits, p > 0.5)",
     "best_view_accuracy": "best-view accuracy (the highest-scored open view is the best next view)",
     "gain_mae": "mean gain error",
+    "chosen_gain_ratio": "gain ratio (what the highest-scored open view sees of what the best one would)",
 }
 
 
@@ -123,8 +124,8 @@ def _parser() -> argparse.ArgumentParser:
             "label is the stored label's SCLoss (the paper's); with a version-2 dataset marginal, mincover (the "
             "nearest minimum cover) or support (the label without punishing other covers' views); with a version-3 "
             "dataset gain regresses every view's gain (a PCNBV-style planner, played step by step by `datagen "
-            "evaluate`: train it with --source observed, what it sees there) and best_view classifies the best next "
-            "view (NBVNet's)",
+            "evaluate`: train it with --source observed, what it sees there), best_view classifies the best next "
+            "view (NBVNet's) and near_best does so with credit for views that see nearly as much (soft classes)",
         )
         sub.add_argument(
             "--max-objects",
@@ -206,6 +207,27 @@ def _parser() -> argparse.ArgumentParser:
     eval_cmd.add_argument("--json", action="store_true")
     eval_cmd.set_defaults(run=_eval)
 
+    ship_cmd = commands.add_parser(
+        "ship", help="make a checkpoint a planner shipped inside osvp (slim file, training card, sha256)"
+    )
+    ship_cmd.add_argument("--checkpoint", type=Path, required=True, help="the run's best.pt")
+    ship_cmd.add_argument("--name", required=True, help="the planner's name: shipped:NAME")
+    ship_cmd.add_argument(
+        "--folder", type=Path, default=None, help="where to write NAME.pt and NAME.md (default: osvp's shipped/)"
+    )
+    ship_cmd.add_argument(
+        "--data-name",
+        action="append",
+        default=[],
+        metavar="URL=NAME",
+        help="record a dataset URL of the run under NAME (repeatable; default: its last path part)",
+    )
+    ship_cmd.add_argument(
+        "--commands", type=Path, default=None, help="a file of the commands that made it, for the card"
+    )
+    ship_cmd.add_argument("--scores", type=Path, default=None, help="a Markdown file of its scores, for the card")
+    ship_cmd.set_defaults(run=_ship)
+
     sweep_cmd = commands.add_parser("sweep-lambda", help="train one planner per lambda: the paper's Table I")
     training(sweep_cmd)
     sweep_cmd.add_argument("--lambdas", default=",".join(str(v) for v in PAPER_LAMBDAS))
@@ -274,6 +296,28 @@ def _train(args: argparse.Namespace) -> int:
     outcome = train(options, on_epoch=_epoch_line, on_batch=_bar("training"), bank=bank)
     figure = SELECTION[outcome.best_metric]
     _note(f"best validation {figure} {outcome.best_score:.4f} at epoch {outcome.best_epoch}; {args.out / 'best.pt'}")
+    return 0
+
+
+def _ship(args: argparse.Namespace) -> int:
+    from osvp import shipped
+    from osvp.shipping import ship
+
+    names = {}
+    for pair in args.data_name:
+        url, sep, name = pair.rpartition("=")
+        if not sep or not url or not name:
+            raise DataError(f"--data-name {pair!r}: give URL=NAME")
+        names[url] = name
+    folder = args.folder or shipped.HERE
+    read = {
+        key: path.read_text() if path is not None else ""
+        for key, path in (("commands", args.commands), ("scores", args.scores))
+    }
+    done = ship(args.checkpoint, folder, args.name, names, read["commands"], read["scores"])
+    print(f"wrote {done.path} ({done.size / 1e6:.2f} MB) and {done.card}; sha256 {done.sha256}")
+    if args.name in shipped.SHIPPED and shipped.SHIPPED[args.name].sha256 != done.sha256:
+        print(f"record it in osvp/shipped/__init__.py: ShippedPlanner(name={args.name!r}, sha256={done.sha256!r})")
     return 0
 
 
@@ -406,6 +450,7 @@ def _epoch_line(report: EpochReport) -> None:
     size = f" cover F1 {row['size_cover_f1']:.3f}" if "size_cover_f1" in row else f" F1 {row['size_f1']:.3f}"
     gains = f" best view {row['best_view_accuracy']:.3f}" if "best_view_accuracy" in row else ""
     gains += f" gain error {row['gain_mae']:.4f}" if "gain_mae" in row else ""
+    gains += f" gain ratio {row['chosen_gain_ratio']:.3f}" if "chosen_gain_ratio" in row else ""
     gains += f" fit F1 {row['fit_size_cover_f1']:.3f}" if "fit_size_cover_f1" in row else ""
     gains += ";" if gains else ""
     _clear()

@@ -18,7 +18,7 @@ if TYPE_CHECKING:  # matplotlib is imported only when drawing
 DECODED = ("precision", "recall", "f1", "exact_accuracy", "cover_f1", "cover_exact", "covers_u", "views")
 """Validation columns written for each decoding of an epoch (plain: threshold 0.5; ``size_``: size)."""
 
-NEXT_VIEW = ("best_view_accuracy", "gain_mae")
+NEXT_VIEW = ("best_view_accuracy", "gain_mae", "chosen_gain_ratio")
 """Validation columns of a next-view target (`osvp.train.next_view_figures`)."""
 FIT = ("f1", "size_cover_f1", "best_view_accuracy")
 """Columns also measured on a fixed draw of training rows (``fit_`` prefix, ``--fit-rows``): the fit curve."""

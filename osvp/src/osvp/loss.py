@@ -123,6 +123,36 @@ def best_view_loss(logits: torch.Tensor, view_state: torch.Tensor, best_view: to
     return F.cross_entropy(masked[has_next], best_view[has_next].long())
 
 
+NEAR_BEST_TEMPERATURE = 0.1
+"""`near_best_loss`'s temperature, as a share of the sample's best gain: a view with 90 % of the best
+gain weighs e^-1 of the best view, one with half of it e^-5."""
+
+
+def near_best_loss(
+    logits: torch.Tensor, view_state: torch.Tensor, gains: torch.Tensor, temperature: float = NEAR_BEST_TEMPERATURE
+) -> torch.Tensor:
+    """Target ``near_best``: cross entropy over the open views against soft classes, each open view
+    weighted by exp((gain - best gain) / (temperature x best gain)), averaged over the samples with
+    something left to see (best gain > 0).
+
+    NBVNet's class with credit for views that see nearly as much: play is judged on what the views
+    see, not on naming the one best view, and equal or nearly equal gains (a symmetric object, a view
+    pair on either side of it) no longer pull the network towards an arbitrary index."""
+    if view_state.shape != logits.shape or gains.shape != logits.shape:
+        shapes = f"logits {tuple(logits.shape)}, view state {tuple(view_state.shape)}, gains {tuple(gains.shape)}"
+        raise ValueError(f"{shapes}: need (batch, views) three times")
+    taken = view_state > 0.5
+    gains = gains.to(logits.dtype).masked_fill(taken, 0.0)
+    best = gains.max(dim=1).values
+    has_next = best > 0
+    if not bool(has_next.any()):
+        return logits.sum() * 0.0
+    scaled = (gains[has_next] - best[has_next, None]) / (temperature * best[has_next, None])
+    soft = torch.softmax(scaled.masked_fill(taken[has_next], -torch.inf), dim=1)
+    masked = logits[has_next].masked_fill(taken[has_next], torch.finfo(logits.dtype).min)
+    return -(soft * F.log_softmax(masked, dim=1)).sum(dim=1).mean()
+
+
 class TargetBatch(Protocol):
     """What a target reads from a batch (`osvp.data.Batch`)."""
 
@@ -157,17 +187,21 @@ class Target:
     loss: TargetLoss
     needs_ties: bool
     since: int = 1
+    selected_by: str | None = None
+    """The validation figure ``best.pt`` maximises, when not the kind's default (`osvp.train.selection_metric`)."""
 
 
 TARGET_REGISTRY: dict[str, Target] = {}
 """The targets `osvp train --target` can name, in registration order (`register_target`)."""
 
 
-def register_target(name: str, needs_ties: bool = True, since: int = 1) -> Callable[[TargetLoss], TargetLoss]:
+def register_target(
+    name: str, needs_ties: bool = True, since: int = 1, selected_by: str | None = None
+) -> Callable[[TargetLoss], TargetLoss]:
     """Register a target: a new one is one decorated function of (logits, batch, lambda)."""
 
     def register(loss: TargetLoss) -> TargetLoss:
-        TARGET_REGISTRY[name] = Target(name, loss, needs_ties, max(since, 2 if needs_ties else 1))
+        TARGET_REGISTRY[name] = Target(name, loss, needs_ties, max(since, 2 if needs_ties else 1), selected_by)
         return loss
 
     return register
@@ -213,6 +247,13 @@ def _best_view(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torc
     if batch.best_view is None:
         raise ValueError("target 'best_view' needs every sample's best next view (a version-3 dataset)")
     return best_view_loss(logits, batch.view_state.to(logits.device), batch.best_view.to(logits.device))
+
+
+@register_target("near_best", needs_ties=False, since=3, selected_by="chosen_gain_ratio")
+def _near_best(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
+    if batch.view_gain is None:
+        raise ValueError("target 'near_best' needs every view's gain (a version-3 dataset)")
+    return near_best_loss(logits, batch.view_state.to(logits.device), batch.view_gain.to(logits.device))
 
 
 TARGETS = tuple(TARGET_REGISTRY)

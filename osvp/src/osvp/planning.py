@@ -49,6 +49,9 @@ class CheckpointScorer(DecodingScorer):
             name for name in DECODINGS if name != "tuned" or self.tuned_threshold is not None
         )
         """Decoding names this checkpoint accepts (``tuned`` only when it holds a tuned threshold)."""
+        self.generation_config = checkpoint.generation_config
+        """The generation config of the data it was trained on (None for older checkpoints): ``datagen
+        evaluate`` images objects with it (`schemas.planning.ViewScorer`)."""
 
     def view_probabilities(
         self,
@@ -89,6 +92,7 @@ class NextViewCheckpointScorer:
     def __init__(self, checkpoint: Checkpoint, device: str = "cpu") -> None:
         self.predict = CheckpointScorer(checkpoint, device)
         self.uses_grid = self.predict.uses_grid
+        self.generation_config = self.predict.generation_config
 
     def next_view_scores(self, observation: NextViewObservation) -> npt.NDArray[np.float64]:
         return self.predict.view_probabilities(observation.cloud, observation.view_state, observation.grid)

@@ -55,7 +55,7 @@ from osvp.data import (
     training_subset,
 )
 from osvp.decoding import PAPER_THRESHOLD, Decoding
-from osvp.loss import AMBIGUITY_TARGETS, NEXT_VIEW_TARGETS, TARGETS, target_loss
+from osvp.loss import AMBIGUITY_TARGETS, NEXT_VIEW_TARGETS, TARGET_REGISTRY, TARGETS, target_loss
 from osvp.metrics import decoded_metrics, tune_threshold
 from osvp.stream import (
     MEMORY_LIMIT_GB,
@@ -243,6 +243,9 @@ def covers_needed(target: str) -> str | None:
 def selection_metric(bank: SampleBank, target: str = "label") -> str:
     """The validation figure ``best.pt`` maximises: for a next-view target, how often the largest
     predicted gain is the best next view; else F1."""
+    chosen = TARGET_REGISTRY[target].selected_by if target in TARGET_REGISTRY else None
+    if chosen is not None:
+        return chosen
     if target in NEXT_VIEW_TARGETS:
         return "best_view_accuracy"
     return "size_cover_f1" if bank.covers is not None else "f1"
@@ -457,6 +460,11 @@ def next_view_figures(
     has_next = best >= 0
     accuracy = float(np.mean(chosen[has_next] == best[has_next])) if has_next.any() else float("nan")
     figures = {"best_view_accuracy": accuracy}
+    best_gain = gains[np.arange(len(rows)), np.maximum(best, 0)]
+    seen_more = has_next & (best_gain > 0)
+    if seen_more.any():  # what the chosen view sees of what the best one would: 1 for a view as good as the best
+        taken = gains[np.arange(len(rows)), chosen]
+        figures["chosen_gain_ratio"] = float(np.mean(taken[seen_more] / best_gain[seen_more]))
     if target == "gain":
         figures["gain_mae"] = float(np.mean(np.abs(predicted - gains)))
     return figures
