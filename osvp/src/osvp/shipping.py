@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from osvp.architectures import architecture
 from osvp.checkpoint import load_checkpoint, save_checkpoint
 from osvp.train import file_sha256
 
@@ -73,6 +74,11 @@ def training_card(name: str, data: dict[str, Any], digest: str, commands: str, s
     metric = str(training.get("best_metric", ""))
     held_out = history[best - 1].get(metric) if 0 < best <= len(history) else None
     config = data.get("generation_config") or {}
+    family = architecture(str(data.get("architecture", "osvp")))
+    reads = "the occupancy grid" + (" and the view state" if data["preset"].get("view_state") else "")
+    if family.reads != "grid":
+        reads = f"the {'observed' if data.get('source') == 'observed' else 'refined'} cloud and the view state"
+    steps = f"{options['steps']} steps" if options.get("steps") else "epochs"
     scene = {key: config.get(key) for key in ("voxel_size", "refiner", "rotations", "imaging") if key in config}
     lines = [
         f"# shipped:{name}",
@@ -82,8 +88,8 @@ def training_card(name: str, data: dict[str, Any], digest: str, commands: str, s
         "| | |",
         "|---|---|",
         f"| file | `{name}.pt`, sha256 `{digest}` |",
-        f"| network | {data.get('architecture', 'osvp')} `{data['preset'].get('name', '')}`, target "
-        f"`{options.get('target', 'label')}`, input `{data.get('source', 'points')}` |",
+        f"| network | {family.name} `{data['preset'].get('name', '')}`, target `{options.get('target', 'label')}`, "
+        f"reads {reads} |",
         f"| training data | `{training.get('data')}`: {training.get('train_samples')} samples of "
         f"{training.get('train_objects')} objects |",
         f"| validation | `{options.get('val_data') or 'a split of the training data'}`: "
@@ -91,7 +97,8 @@ def training_card(name: str, data: dict[str, Any], digest: str, commands: str, s
         f"| config it expects | hash of its data `{str(training.get('config_hash', ''))[:12]}`; "
         + ", ".join(f"{key} {json.dumps(value)}" for key, value in scene.items())
         + " |",
-        f"| steps | {len(history)} epochs of batch {options.get('batch_size')}, best epoch {best} |",
+        f"| training | {steps} of batch {options.get('batch_size')} ({len(history)} epochs), learning rate "
+        f"{options.get('learning_rate')}, seed {options.get('seed')}; best epoch {best} |",
         f"| held out | {metric} {held_out:.4f} |" if isinstance(held_out, float) else f"| held out | {metric} |",
         f"| started from | {'sha256 `' + str(options['init']) + '`' if options.get('init') else 'random weights'} |",
     ]
