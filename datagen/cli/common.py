@@ -37,11 +37,14 @@ def user_errors(url: str | None = None) -> Iterator[None]:
     """Print a user-caused error (any `DatagenError`: datagen's own, `storage.StorageError`,
     `jobs.LedgerError`) as one ``error: <message>`` line on stderr and exit with `EXIT_USER_ERROR`;
     bugs keep their traceback. With the command's dataset ``url``, a failure of its store met
-    mid-command (the store went away after `storage.check_store` passed) is such a line too."""
+    mid-command (the store went away after `storage.check_store` passed) is such a line too; a pipe
+    closed by its reader never is (click ends the command quietly, as ``head`` expects)."""
     try:
         yield
     except DatagenError as exc:
         _print_error(str(exc))
+    except BrokenPipeError:
+        raise  # the reader of our output closed it (`| head`): click ends the command quietly, no one's fault
     except Exception as exc:
         from storage import is_store_failure, storage_failure
 
