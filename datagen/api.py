@@ -2,16 +2,17 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from datagen.config_io import load_config
 from datagen.engine import serve as serve_loop
-from datagen.engine.driver import ProgressCallback, run_job
+from datagen.engine.driver import ProgressCallback, check_output, run_job
 from datagen.engine.job_plan import plan_job
 from datagen.engine.serve import LEDGER_FILE, ledger_for
 from datagen.engine.worker import TaskBody, execute_task
-from datagen.errors import DatagenError
+from datagen.errors import DatagenError, ObjectsFileError
 from datagen.settings import RunSettings
 from jobs.ledger import Job, LedgerError
 from schemas.config import GenerationConfig
@@ -27,12 +28,26 @@ def enqueue(
     objects: str | Path,
     config: GenerationConfig | str | Path | None = None,
     settings: RunSettings | None = None,
+    strict: bool = False,
+    on_line_error: Callable[[str], None] | None = None,
 ) -> Job:
-    """Plan a job and put it in the ledger (pending) without running it."""
+    """Plan a job and put it in the ledger (pending) without running it.
+
+    Every objects-file line's mesh file is read while planning; a line that names no usable object
+    (a missing file, a bad option) is told to ``on_line_error`` at once and left out of the job, or,
+    with ``strict``, refuses the whole job before anything is recorded."""
     settings = settings or RunSettings()
     resolved = config if isinstance(config, GenerationConfig) else load_config(config)
     plan = plan_job(objects, resolved, out="")
+    errors = plan.spec.line_errors
+    if errors and strict:
+        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+        raise ObjectsFileError(f"{errors[0]}{more}; fix the line or submit without --strict to go on without it")
+    for error in errors:
+        if on_line_error is not None:
+            on_line_error(error)
     out = settings.out or default_out(settings, plan.spec.job_id)
+    check_output(out, resolved, settings.storage_options(out))  # refused before anything is recorded
     spec = plan.spec.model_copy(update={"out": out})
     with_ledger = ledger_for(settings)
     try:

@@ -5,7 +5,7 @@ Depends on numpy, zarr, pyarrow, fsspec and `schemas` only: a training package n
 """
 
 from storage.covers import covers_universe, nearest_cover, undominated, universe_rows
-from storage.dataset_info import init_dataset, read_info
+from storage.dataset_info import existing_info, init_dataset, read_info
 from storage.export import export_air
 from storage.index import load_index
 from storage.location import DamagedFile, Location, StorageError, StoreUnreachable, is_s3, open_location
@@ -45,6 +45,7 @@ __all__ = [
     "check_store",
     "committed_tasks",
     "covers_universe",
+    "existing_info",
     "export_air",
     "finalise",
     "holds_dataset",

@@ -33,18 +33,28 @@ def holds_records(location: Location) -> bool:
     return any(location.listdir(folder) for folder in (COMMITS, FAILURES))
 
 
+def existing_info(location: Location, info: DatasetInfo) -> DatasetInfo | None:
+    """The ``dataset.json`` already at ``location`` when it has ``info``'s config (None: no dataset
+    there yet); a `StorageError` naming the fix when it holds a dataset of another config. Reads only:
+    a job is checked with it before it is recorded, so a refused job leaves nothing behind."""
+    if not location.exists(DATASET_FILE):
+        return None
+    existing = read_info(location)
+    if existing.config_hash != info.config_hash:
+        theirs, ours = existing.config.poco_version, info.config.poco_version
+        hint = f" (it was made with poco_version = {theirs}, this job has {ours}: set it to add to it)"
+        raise StorageError(
+            f"{location.url}: holds a dataset of another config (hash {existing.config_hash[:12]}, "
+            f"this job {info.config_hash[:12]}){hint if theirs != ours else ''}; write to a new --out"
+        )
+    return existing
+
+
 def init_dataset(location: Location, info: DatasetInfo) -> DatasetInfo:
     """Write ``dataset.json`` for a new dataset, or check that an existing one has the same config; a
     job adds to it next, so readers are told to look past its manifest (`manifest.mark_adding`)."""
-    if location.exists(DATASET_FILE):
-        existing = read_info(location)
-        if existing.config_hash != info.config_hash:
-            theirs, ours = existing.config.poco_version, info.config.poco_version
-            hint = f" (it was made with poco_version = {theirs}, this job has {ours}: set it to add to it)"
-            raise StorageError(
-                f"{location.url}: holds a dataset of another config (hash {existing.config_hash[:12]}, "
-                f"this job {info.config_hash[:12]}){hint if theirs != ours else ''}; write to a new --out"
-            )
+    existing = existing_info(location, info)
+    if existing is not None:
         mark_adding(location)
         return existing
     location.write_atomic(DATASET_FILE, info.model_dump_json(indent=1).encode())

@@ -21,7 +21,7 @@ from datagen.cli.common import Cell, console, error_console, print_rows, say, us
 from datagen.engine.driver import JobProgress, ProgressCallback
 from datagen.pipeline.step_timing import step_lines, totals_from_json
 from datagen.settings import RunSettings, default_home
-from jobs.ledger import DONE, RUNNING, Job
+from jobs.ledger import DONE, FAILED, RUNNING, Job
 
 HomeOption = Annotated[
     Path | None,
@@ -153,13 +153,22 @@ def submit(
     shared_refiner: SharedOption = False,
     refiner_batch: BatchOption = 1,
     home: HomeOption = None,
+    strict: Annotated[
+        bool,
+        typer.Option("--strict", help="Refuse the job when an objects-file line names no usable object."),
+    ] = False,
 ) -> None:
-    """Create a dataset job and run it now with a live progress display (or enqueue it)."""
+    """Create a dataset job and run it now with a live progress display (or enqueue it). Every line's
+    mesh file is read first: a bad line is named at once and left out (--strict: the job is refused)."""
     from datagen import api
 
     with user_errors():
         settings = _settings(home, out, address, workers, refiner_gpus, shared_refiner, refiner_batch)
-        job = api.enqueue(objects, config, settings)
+
+        def skipped(error: str) -> None:
+            error_console.print(f"skipped {error}", markup=False, highlight=False, soft_wrap=True)
+
+        job = api.enqueue(objects, config, settings, strict=strict, on_line_error=skipped)
         ledger = api.ledger_for(settings)
         try:
             tasks = sum(ledger.task_counts(job.job_id).values())
@@ -253,6 +262,9 @@ def status(
             print_rows(["job", "state", "tasks", "done", "failed", "running", "dataset"], job_rows)
             for hint in hints:
                 say(hint)
+            for job in jobs:
+                if job.state == FAILED:
+                    say(f"job {job.job_id} failed: {failure_reason(job)}")
             if job_id:
                 lost_tasks = job_id in lost_jobs
                 rows: Iterator[list[Cell]] = (
@@ -269,6 +281,27 @@ def status(
                 print_rows(["task", "state", "attempts", "samples", "placement", "error"], rows)
         finally:
             ledger.close()
+
+
+def failure_reason(job: Job) -> str:
+    """Why a job failed, in one line: the error that stopped it, else what failed of it (the first one named)."""
+    summary = job.summary or {}
+    if summary.get("error"):
+        return str(summary["error"])
+    parts = []
+    failed, refused = int(summary.get("failed", 0)), int(summary.get("refused_lines", 0))
+    if failed:
+        parts.append(f"{plural(failed, 'task')} failed")
+    if refused:
+        parts.append(f"{plural(refused, 'objects-file line')} named no usable object")
+    first = [*summary.get("line_errors", []), *summary.get("failures", [])][:1]
+    reason = " and ".join(parts) or "see `datagen status JOB`"
+    return f"{reason} (first: {first[0]})" if first else reason
+
+
+def plural(count: int, noun: str) -> str:
+    """``1 task``, ``2 tasks``."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def _print_status_json(ledger: Any, jobs: list[Any], job_id: str | None) -> None:

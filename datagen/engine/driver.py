@@ -54,6 +54,7 @@ from schemas.version import SCHEMA_VERSION
 from storage import (
     Location,
     check_store,
+    existing_info,
     finalise,
     init_dataset,
     open_location,
@@ -250,11 +251,8 @@ def run_job(
     spec = JobSpec.model_validate(job.spec)
     config = spec.config
     total = sum(ledger.task_counts(job_id).values())
-    location = open_location(job.out, storage_options)
-    info = dataset_info(config)
+    location, info = check_output(job.out, config, storage_options)
     with _store_errors(job.out):
-        check_store(location)  # a wrong endpoint, key or bucket: one line in seconds, nothing written
-        _check_same_files(location, config, info.config_hash)
         info = init_dataset(location, info)  # an existing dataset keeps its own layout version
         for number, line_error in enumerate(spec.line_errors):
             origin, _, message = line_error.partition(": ")
@@ -414,6 +412,22 @@ def sweep_leftovers(location: Location, task_ids: list[str], commits: list[Commi
     temporary files older than `TEMPORARY_AGE`); the removed paths, sorted. Only for a job whose
     tasks are all finished: no attempt of theirs is still writing."""
     return sorted(sweep_orphans(location, task_ids, commits) + sweep_temporaries(location, TEMPORARY_AGE))
+
+
+def check_output(
+    url: str, config: GenerationConfig, storage_options: dict[str, Any] | None = None
+) -> tuple[Location, DatasetInfo]:
+    """Whether a job of ``config`` may write to ``url``, read-only: the store answers (a wrong endpoint,
+    key or bucket: one line in seconds), and a dataset already there has this config and the same
+    files. (its location, the dataset info a job would write). Called before a job is recorded, so a
+    refused one never lingers in the ledger against the dataset it would have spoiled."""
+    location = open_location(url, storage_options)
+    info = dataset_info(config)
+    with _store_errors(url):
+        check_store(location)
+        _check_same_files(location, config, info.config_hash)
+        existing_info(location, info)
+    return location, info
 
 
 def _check_same_files(location: Location, config: GenerationConfig, config_hash: str) -> None:

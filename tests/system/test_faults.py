@@ -421,11 +421,12 @@ def test_serve_fails_a_job_that_cannot_start_and_goes_on(no_local_ray, tmp_path:
     from storage import init_dataset
 
     out = tmp_path / "taken"
-    init_dataset(open_location(str(out)), dataset_info(GenerationConfig(rotations=3, refiner="none")))
     write_config(tmp_path / "one.toml", rotations=1)
     write_objects(tmp_path / "one.txt", builtin_lines(["capsule"]))
     home = tmp_path / "home"
     job = api.enqueue(tmp_path / "one.txt", tmp_path / "one.toml", RunSettings(home=home, out=str(out)))
+    # Another job's dataset takes the folder after this job was queued (submit refuses it before that).
+    init_dataset(open_location(str(out)), dataset_info(GenerationConfig(rotations=3, refiner="none")))
     result = run_datagen(["serve", "--once", "--home", str(home), "--workers", "1", "--poll", "0.2"], timeout=120)
     with open_ledger(home) as ledger:
         state = ledger.job(job.job_id).state
