@@ -13,11 +13,13 @@ removes); a crash after it leaves a complete, committed task.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import time
 from collections.abc import Collection
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -144,6 +146,31 @@ def write_failure(location: Location, record: FailureRecord) -> None:
     if location.exists(commit_path(record.task_id)):
         return
     location.write_atomic(failure_path(record.task_id), record.model_dump_json().encode())
+
+
+LINE_PREFIX = "line-"
+"""Failure records of objects-file lines that never became a task: ``line-<16 hex of FILE:LINE>``."""
+
+
+def line_failure_id(origin: str) -> str:
+    """The record id of objects-file line ``origin`` (``FILE:LINE``): the same line keeps one record
+    across jobs, two files never share one."""
+    return LINE_PREFIX + hashlib.sha256(origin.encode()).hexdigest()[:16]
+
+
+def retire_line_failures(location: Location, objects_file: str) -> int:
+    """Remove the failure records of ``objects_file``'s lines (a job of that file is about to record its
+    own: a line fixed since then is no longer missing); how many were removed."""
+    target = Path(objects_file).resolve()
+    retired = 0
+    for record in read_failures(location):
+        if not record.task_id.startswith(LINE_PREFIX) or record.object_name:
+            continue
+        source = record.origin.rpartition(":")[0]
+        if source and Path(source).resolve() == target:
+            location.remove(failure_path(record.task_id))
+            retired += 1
+    return retired
 
 
 def read_failures(location: Location) -> list[FailureRecord]:

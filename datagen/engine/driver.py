@@ -65,6 +65,7 @@ from storage import (
     write_failure,
 )
 from storage.manifest import read_tasks, record_of
+from storage.writer import line_failure_id, retire_line_failures
 
 LEASE_SECONDS = 120.0
 RENEW_EVERY = 20.0
@@ -230,8 +231,12 @@ def run_job(
     body: TaskBody = execute_task,
     shared_refiner: bool = False,
     refiner_batch: int = 1,
+    out: str | None = None,
 ) -> Job:
     """Run every runnable task of a job to completion (or cancellation); returns the job.
+
+    ``out`` writes the tasks to another copy of the job's dataset than the one it was submitted
+    with (`datagen shards repair` of a dataset moved since); None: the job's own.
 
     Each task reserves one CPU, and ``refiner_gpus`` of a GPU when that is > 0 (its learned refiner
     then runs on CUDA). Tasks are plain Ray tasks rather than a fixed pool of actors, so a node that
@@ -251,12 +256,16 @@ def run_job(
     spec = JobSpec.model_validate(job.spec)
     config = spec.config
     total = sum(ledger.task_counts(job_id).values())
-    location, info = check_output(job.out, config, storage_options)
-    with _store_errors(job.out):
+    target = out or job.out
+    location, info = check_output(target, config, storage_options)
+    with _store_errors(target):
         info = init_dataset(location, info)  # an existing dataset keeps its own layout version
-        for number, line_error in enumerate(spec.line_errors):
+        # This job's objects-file lines say what is missing now: a line fixed since an earlier job of
+        # the same file no longer is, so that job's records of the file's lines are retired first.
+        retire_line_failures(location, spec.objects_file)
+        for line_error in spec.line_errors:
             origin, _, message = line_error.partition(": ")
-            write_failure(location, failure_record(f"line-{number:04d}", message, origin=origin))
+            write_failure(location, failure_record(line_failure_id(origin), message, origin=origin))
     ensure_ray(address, num_cpus, _waiting_notice(progress, total))
     if refiner_gpus > 0 and not ray.cluster_resources().get("GPU", 0):
         raise ConfigError(
@@ -300,7 +309,7 @@ def run_job(
                         body,
                         task,
                         config,
-                        job.out,
+                        target,
                         claim.attempt_id,
                         storage_options,
                         device,

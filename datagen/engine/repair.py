@@ -9,7 +9,11 @@ stored config and objects: by determinism the same samples as before the damage.
 only problem is its merged index just gets it finalised again; a sound one is left untouched.
 
 The tasks come from the job ledger that made the dataset (its config and objects are there), so
-repair runs where the job was submitted: the same ``--home`` (on a cluster, the head).
+repair runs where the job was submitted: the same ``--home`` (on a cluster, the head). The jobs are
+found by the dataset's own identity, the config hash of its ``dataset.json``, wherever the data now
+lives (a copied or moved dataset is repaired in place, from the jobs that made its original); a job
+that wrote to this very path is preferred, and only those jobs' done tasks are missed when their
+commit records are gone (a copy may rightly hold fewer tasks than its original).
 """
 
 from __future__ import annotations
@@ -21,7 +25,17 @@ from datagen.engine.driver import ProgressCallback, run_job
 from datagen.engine.serve import ledger_for
 from datagen.settings import RunSettings
 from jobs.ledger import DONE, Job, Ledger
-from storage import Location, StorageError, check_store, finalise, open_location, read_commits, validate_dataset
+from schemas.jobs import JobSpec
+from storage import (
+    Location,
+    StorageError,
+    check_store,
+    finalise,
+    open_location,
+    read_commits,
+    read_info,
+    validate_dataset,
+)
 from storage.problems import Problem
 from storage.repair import Findings, sort_problems, withdraw
 
@@ -60,12 +74,13 @@ def repair_dataset(url: str, settings: RunSettings, progress: ProgressCallback |
         raise StorageError(f"{url}: cannot be repaired by re-running tasks: {found.other[0]}")
     ledger = ledger_for(settings)
     try:
-        jobs = _jobs_writing(ledger, url)
+        here = _jobs_writing(ledger, url)
+        jobs = here + [job for job in _jobs_of_config(ledger, read_info(location).config_hash) if job not in here]
         redo = {task: problems[0].line for task, problems in found.tasks.items()} | _lost_commits(
-            ledger, jobs, location
+            ledger, here, location
         )
         if not redo and not found.index:
-            return RepairSummary(url, jobs=[j.job_id for j in jobs], samples=_samples(url, options))
+            return RepairSummary(url, jobs=[j.job_id for j in here], samples=_samples(url, options))
         owners = _owners(ledger, jobs, sorted(redo), url, settings, found)
         withdraw(location, sorted(redo))
         for job_id in sorted(set(owners.values())):
@@ -80,6 +95,7 @@ def repair_dataset(url: str, settings: RunSettings, progress: ProgressCallback |
                 refiner_gpus=settings.refiner_gpus,
                 shared_refiner=settings.shared_refiner,
                 refiner_batch=settings.refiner_batch,
+                out=url,
             )
         finalise(location)
         not_done = sorted(
@@ -111,6 +127,19 @@ def _jobs_writing(ledger: Ledger, url: str) -> list[Job]:
     return [job for job in ledger.jobs() if job.out and _where(job.out) == where]
 
 
+def _jobs_of_config(ledger: Ledger, config_hash: str) -> list[Job]:
+    """The ledger's jobs whose config is the dataset's (by its hash in ``dataset.json``): the jobs that
+    could have made it, wherever it was written."""
+    found = []
+    for job in ledger.jobs():
+        try:
+            if JobSpec.model_validate(job.spec).config.config_hash() == config_hash:
+                found.append(job)
+        except (ValueError, OSError):  # a job of an older datagen, or one naming files gone since
+            continue
+    return found
+
+
 def _lost_commits(ledger: Ledger, jobs: list[Job], location: Location) -> dict[str, str]:
     """Tasks the ledger has done whose commit record is gone (never named by a finalised index,
     so `storage.validate` cannot see that they are missing)."""
@@ -131,11 +160,11 @@ def _owners(
     owners = {task.task_id: job.job_id for job in jobs for task in ledger.tasks(job.job_id)}
     unknown = [task for task in tasks if task not in owners]
     if unknown:
-        where = f"no job in the ledger at {settings.home} writing this dataset"
         example = found.tasks.get(unknown[0], [""])[0]
         raise StorageError(
-            f"{url}: {where} made task {unknown[0]} ({example}); run `datagen shards repair` where the job was "
-            "submitted (its --home / DATAGEN_HOME; on a cluster, the head), or re-submit its objects to a new --out"
+            f"{url}: needs task {unknown[0]} run again ({example}), and no job of this dataset's config in the "
+            f"ledger at {settings.home} plans it; give --home the ledger where the dataset was made (on a "
+            "cluster, the head), or re-submit its objects to a new --out"
         )
     return {task: owners[task] for task in tasks}
 

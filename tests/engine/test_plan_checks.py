@@ -108,3 +108,40 @@ def test_status_says_why_a_job_failed(tmp_path: Path, monkeypatch: pytest.Monkey
     result = CliRunner().invoke(app, ["status", "--home", str(home)])
     assert result.exit_code == 0, result.output
     assert f"job {job.job_id} failed: 1 objects-file line named no usable object (first: {line_error})" in result.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_a_line_fixed_and_submitted_again_is_no_longer_reported_missing(tmp_path: Path) -> None:
+    """Finding 3: the failure record of a bad line belongs to that submission; the same objects file
+    submitted again, the line fixed, retires it, so ls, stats and validate report nothing missing. A
+    record of another objects file's line is left alone."""
+    import trimesh
+    from support.engine import start_local_ray, stop_local_ray
+
+    from schemas.index import failure_record
+    from storage import open_dataset, read_failures, validate
+    from storage.writer import line_failure_id, write_failure
+
+    home, out = tmp_path / "home", tmp_path / "out"
+    config = tmp_path / "one.toml"
+    config.write_text('rotations = 1\nrefiner = "none"\n')
+    objects = objects_file(tmp_path, "builtin:capsule", "box.obj")
+    settings = RunSettings(home=home, out=str(out), num_workers=1)
+    start_local_ray(1)
+    try:
+        first = api.submit(objects, config, settings)
+        assert first.state == "failed" and first.summary["refused_lines"] == 1
+        (record,) = read_failures(open_location(str(out)))
+        assert record.origin == f"{objects}:2" and record.task_id == line_failure_id(f"{objects}:2")
+        other = f"{tmp_path / 'other.txt'}:7"
+        write_failure(open_location(str(out)), failure_record(line_failure_id(other), "not found", origin=other))
+        trimesh.creation.box(extents=(0.08, 0.06, 0.04)).export(tmp_path / "box.obj")  # the line fixed
+        second = api.submit(objects, config, settings)
+    finally:
+        stop_local_ray()
+    assert second.state == "done", second.summary
+    assert [r.origin for r in read_failures(open_location(str(out)))] == [other]
+    dataset = open_dataset(str(out))
+    assert [f.origin for f in dataset.failures()] == [other]
+    assert not [p for p in validate(str(out), full=False) if "box.obj" in str(p)]

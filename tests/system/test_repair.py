@@ -201,3 +201,30 @@ def test_repair_reads_the_records_not_the_messages(
     assert f"re-ran {task_id}: " in output and "something else #" in output and output.count("re-ran ") == 1
     assert validate(made.url, full=True) == []
     assert assert_same_samples(made.url, made.reference) > 0
+
+
+def test_a_moved_dataset_is_repaired_from_the_jobs_of_its_identity(
+    runner: CliRunner, reference: str, inputs: Path, tmp_path: Path
+) -> None:
+    """A dataset copied elsewhere (the usual case after shipping) is found by its dataset.json's config,
+    not its path: its damaged task is re-run into the copy, the original is not touched; a ledger that
+    made no dataset of this config says in one line what repair needs (issue 52, finding 4)."""
+    import shutil
+
+    made = Made(make(inputs, tmp_path / "home", str(tmp_path / "dataset")), tmp_path / "home", reference)
+    moved = tmp_path / "shipped" / "copy"
+    shutil.copytree(made.url, moved)
+    location = open_location(str(moved))
+    task_id = sorted(r.task_id for r in committed_tasks(location))[0]
+    truncate_array(location, task_id)
+    original = {r.task_id: r.attempt_id for r in committed_tasks(open_location(made.url))}
+    output = repair(runner, Made(str(moved), made.home, reference))
+    assert f"re-ran {task_id}" in output and output.count("re-ran ") == 1, output
+    assert validate(str(moved), full=True) == []
+    assert assert_same_samples(str(moved), reference) == assert_same_samples(made.url, reference)
+    assert {r.task_id: r.attempt_id for r in committed_tasks(open_location(made.url))} == original
+    truncate_array(location, task_id)
+    result = runner.invoke(app, ["shards", "repair", str(moved), "--home", str(tmp_path / "elsewhere")])
+    assert result.exit_code == 2
+    (line,) = [line for line in result.output.splitlines() if line.strip()]
+    assert line.startswith(f"error: {moved}: needs task {task_id} run again") and "give --home the ledger" in line
