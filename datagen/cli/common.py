@@ -119,9 +119,11 @@ def _plain(cell: object) -> str:
 
 
 def progress_bar(remaining: bool = False) -> Progress:
-    """A transient bar for a long command (``remaining``: with the time left); disabled when output
-    goes to a pipe or a test runner, which get the result lines only."""
+    """A transient bar for a long command (``remaining``: with the time left); off a terminal (a pipe,
+    a log) one progress line per interval instead (`datagen.cli.progress.IntervalProgress`)."""
+    from datagen.cli.progress import IntervalProgress
+
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()]
     if remaining:
         columns.append(TimeRemainingColumn())
-    return Progress(*columns, console=console, transient=True, disable=not console.is_terminal)
+    return IntervalProgress(*columns, console=console, transient=True)

@@ -15,11 +15,12 @@ from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
 
 from datagen.cli.common import Cell, ConfigOption, console, error_console, print_rows, print_table, say, user_errors
+from datagen.cli.progress import IntervalProgress
 from datagen.config_io import config_to_toml, load_config
 from datagen.errors import DatagenError, OutputError
 from datagen.pipeline.thread_limits import single_threaded_blas
@@ -291,7 +292,7 @@ def scan(
         )
         problems: list[str] = [str(error) for error in listing.errors]
         started = time.perf_counter()
-        with Progress(
+        with IntervalProgress(
             TextColumn("{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.text import Text
 
 from datagen.cli.common import Cell, console, error_console, print_rows, say, user_errors
@@ -82,7 +82,9 @@ def _settings(
 
 @contextmanager
 def _progress_display(title: str) -> Iterator[ProgressCallback]:
-    with Progress(
+    from datagen.cli.progress import IntervalProgress
+
+    with IntervalProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
