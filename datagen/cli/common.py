@@ -73,16 +73,30 @@ def say(text: str) -> None:
 Cell = str | Text
 
 
-def print_rows(columns: list[str], rows: Iterable[list[Cell]], out: Console | None = None) -> None:
+def print_rows(
+    columns: list[str], rows: Iterable[list[Cell]], out: Console | None = None, whole: Iterable[str] = ()
+) -> None:
     """A rich table on a terminal (``str`` cells are plain text, not markup); elsewhere (a pipe, a file,
     a test runner) a tab-separated header and one tab-separated line per row, never wrapped, so a long
     message stays on its line for grep and cut. Rows are written as they come there (a listing of
-    100,000 rows is never held)."""
+    100,000 rows is never held).
+
+    On a terminal no cell is cut short with an ellipsis: a cell too wide for its column is folded
+    onto more lines, and the ``whole`` columns (the ids the next command takes: a job, a task) keep
+    every value on one line, at the other columns' expense, however narrow the terminal."""
     out = out or console
     if out.is_terminal:
-        table = Table(*columns)
-        for row in rows:
-            table.add_row(*(Text(cell) if isinstance(cell, str) else cell for cell in row))
+        held = [[Text(cell) if isinstance(cell, str) else cell for cell in row] for row in rows]
+        keep = set(whole)
+        table = Table()
+        for number, name in enumerate(columns):
+            if name in keep:
+                widest = max([len(name), *(row[number].cell_len for row in held)])
+                table.add_column(name, no_wrap=True, min_width=widest)
+            else:
+                table.add_column(name, overflow="fold")
+        for row in held:
+            table.add_row(*row)
         out.print(table)
         return
     # Written past rich, which would expand the tabs to spaces.

@@ -261,7 +261,7 @@ def status(
                     ]
                 )
             # Whole lines off a terminal: the id that `resume` and `cancel` take is copied from a pipe.
-            print_rows(["job", "state", "tasks", "done", "failed", "running", "dataset"], job_rows)
+            print_rows(["job", "state", "tasks", "done", "failed", "running", "dataset"], job_rows, whole=["job"])
             for hint in hints:
                 say(hint)
             for job in jobs:
@@ -280,7 +280,7 @@ def status(
                     ]
                     for task in ledger.each_task(job_id)
                 )
-                print_rows(["task", "state", "attempts", "samples", "placement", "error"], rows)
+                print_rows(["task", "state", "attempts", "samples", "placement", "error"], rows, whole=["task"])
         finally:
             ledger.close()
 

@@ -165,7 +165,7 @@ def ls(
     if as_json:
         _print_tasks_json(rows)
         return
-    print_rows(TASK_COLUMNS, (task_cells(row) for row in rows))  # tab-separated lines outside a terminal
+    print_rows(TASK_COLUMNS, (task_cells(row) for row in rows), whole=["task"])  # tab-separated off a terminal
     failed = [row for row in rows if row.state == FAILED]
     committed = len(rows) - len(failed)
     total = sum(row.bytes_on_disk for row in rows)
