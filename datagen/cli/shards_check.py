@@ -15,11 +15,10 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from datagen.cli.common import UrlArgument, dataset_options, progress_bar, say, user_errors
-from storage.problems import lines
+from storage.problems import Mend, Problem, lines
 
 if TYPE_CHECKING:
     from datagen.inspection.label_check import LabelProblem
-    from storage.problems import Problem
 
 UNCOVERED_KIND = "uncovered"
 """`storage.validate`'s kind for a label that leaves keys of its U uncovered."""
@@ -76,7 +75,8 @@ def validate(
                 storage_problems.extend(findings.problems)
                 labels.extend(findings.labels)
                 checked += findings.checked
-        problems = lines(storage_problems) + _new_label_lines(storage_problems, labels)
+        label_lines = _new_label_lines(storage_problems, labels)
+        problems = lines(storage_problems) + label_lines
         for line in problems:
             say(line)
         for line in found.warnings:
@@ -91,11 +91,35 @@ def validate(
             say(
                 f"{_count(len(problems), 'problem')} ({checked} labels checked with the solver, {scope}{share}){warned}"
             )
+            say(fix_line(url, storage_problems, bool(label_lines)))
             raise typer.Exit(1)
         sound = f"{_count(found.tasks_total, 'task')} sound"
         if share:  # a sample: say what was read, not more
             sound = f"{found.tasks_checked} of {_count(found.tasks_total, 'task')} read and sound, every record sound"
         say(f"ok: {sound}, {checked} labels checked with the solver ({scope}{share}){warned}")
+
+
+def fix_line(url: str, problems: list[Problem], labels: bool) -> str:
+    """What mends what validate found: `datagen shards repair` for a damaged task or index (from the
+    problems' records), a new dataset when ``dataset.json`` itself is damaged."""
+    mends = {problem.mend for problem in problems}
+    if any(problem.mend == Mend.NONE and not problem.file for problem in problems):
+        return f"fix: check the URL: {url} holds no datagen dataset"
+    if Mend.NONE in mends:
+        return (
+            f"fix: {url}'s dataset.json is damaged and nothing in the dataset can restore it: restore it from a "
+            "copy, or re-submit the objects to a new --out"
+        )
+    fixes = []
+    if mends:
+        tasks = len({problem.task for problem in problems if problem.mend == Mend.TASK})
+        what = (
+            f"re-runs the {_count(tasks, 'damaged task')} from the ledger that made them" if tasks else "finalises it"
+        )
+        fixes.append(f"datagen shards repair {url} ({what}; where the job was submitted, or give --home)")
+    if labels:  # labels the solver disagrees with, in sound shards: labelled again from the stored sets
+        fixes.append(f"datagen shards relabel {url} --out NEW_URL (labels every case again from its stored sets)")
+    return "fix: " + "; then ".join(fixes)
 
 
 def _count(number: int, noun: str) -> str:

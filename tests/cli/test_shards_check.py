@@ -64,8 +64,10 @@ def url_of(dataset: EngineDataset, where: str) -> str:
 
 
 def problem_lines(result: Result) -> list[str]:
-    """Every output line but the final summary line."""
-    return result.output.splitlines()[:-1]
+    """Every output line but the closing two: the count of problems and the fix."""
+    closing = result.output.splitlines()[-2:]
+    assert closing[-1].startswith("fix: "), result.output  # a damaged dataset names its fix (issue 52)
+    return result.output.splitlines()[:-2]
 
 
 def lines_with(result: Result, *parts: str) -> list[str]:
@@ -174,7 +176,8 @@ def test_validate_of_a_folder_that_is_no_dataset(tmp_path: Path) -> None:
     result = shards("validate", str(tmp_path))
     assert result.exit_code == 1
     assert problem_lines(result) == [f"{tmp_path}: no dataset.json here; this is not a datagen dataset (check the URL)"]
-    assert result.output.splitlines()[-1].startswith("1 problem ")
+    assert result.output.splitlines()[-2].startswith("1 problem ")
+    assert result.output.splitlines()[-1] == f"fix: check the URL: {tmp_path} holds no datagen dataset"
 
 
 # -- storage's corruptions (tests/storage/test_validate.py's list), each seen through the CLI --------------------
@@ -770,6 +773,25 @@ def test_validate_all_finds_a_visibility_label_that_is_not_the_best(tmp_path: Pa
         f"{record.shard} row {row}: label {mask_views(worse)} is not among its 1 listed ties",
         f"{name}: label {views_text(worse)} sees {seen_worse} keys, {views_text(label)} sees {seen_label}",
     ]
+    fix = result.output.splitlines()[-1]
+    assert fix.startswith(f"fix: datagen shards repair {root} (re-runs the 1 damaged task from the ledger")
+    assert f"then datagen shards relabel {root} --out NEW_URL" in fix
+
+
+def test_validate_names_the_repair_that_mends_a_damaged_shard(tmp_path: Path) -> None:
+    from support import storage as fx
+
+    root = tmp_path / "damaged"
+    fx.build_dataset(str(root), finalise_index=True)
+    records = committed_tasks(open_location(str(root)))
+    for record in records:  # every task's shard loses its masks: two tasks to re-run
+        with group(root, record) as g:
+            del g[MASKS]
+    result = validate_all(root)
+    assert result.output.splitlines()[-1] == (
+        f"fix: datagen shards repair {root} (re-runs the 2 damaged tasks from the ledger that made them; where the "
+        "job was submitted, or give --home)"
+    )
 
 
 @pytest.mark.parametrize(
