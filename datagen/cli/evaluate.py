@@ -14,9 +14,19 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperCommand
 
-from datagen.cli.common import ConfigOption, dataset_options, error_console, progress_bar, say, user_errors
+from datagen.cli.common import (
+    ConfigOption,
+    console,
+    dataset_options,
+    error_console,
+    print_rows,
+    progress_bar,
+    say,
+    user_errors,
+)
 from datagen.config_io import load_config
 from datagen.errors import InvalidArgument
+from schemas.config import GenerationConfig
 
 EXIT_SOME_FAILED = 1
 
@@ -117,30 +127,31 @@ def evaluate(
 ) -> None:
     """Simulate the one-shot pipeline on each object and report coverage, views and movement per planner."""
     from datagen.evaluate.episode import Budget
-    from datagen.evaluate.margins import margin_rows, margin_table
+    from datagen.evaluate.margins import MARGIN_COLUMNS, MARGIN_LEGEND, margin_cells, margin_rows, margin_table
     from datagen.evaluate.protocol import PlannerContext
-    from datagen.evaluate.report import markdown_table, per_object_rows, summarise
+    from datagen.evaluate.report import markdown_table, per_object_rows, summarise, table_cells
     from datagen.evaluate.run import EvaluationSpec, ObjectOutcome, check_planners, evaluate, parse_selection
 
     with user_errors(fixed_from):
         from datagen.evaluate.planner_config import resolve_evaluation_config
 
-        chosen = resolve_evaluation_config(load_config(config) if config is not None else None, planner, refiner)
-        resolved = chosen.config
-        if chosen.source.startswith("planner") and not as_json:
-            say(
-                f"imaging as {chosen.source} was trained (config {resolved.config_hash()[:12]}, refiners "
-                f"{', '.join(chosen.refiners)}); --config must image alike"
-            )
+        given = load_config(config) if config is not None else None
         if budget_views is not None and budget_views < 1:
             raise InvalidArgument(f"--budget-views {budget_views}: give at least 1 (the initial view counts)")
         if budget_moves is not None and not budget_moves > 0:
             raise InvalidArgument(f"--budget-moves {budget_moves}: give a positive number of metres")
         if tau is not None and not 0 < tau <= 1:
             raise InvalidArgument(f"--tau {tau}: give a share of the surface in (0, 1]")
+        budgets = _margin_budgets(margins, (given or GenerationConfig()).num_views, planner)  # before any loading
+        chosen = resolve_evaluation_config(given, planner, refiner)
+        resolved = chosen.config
+        if chosen.source.startswith("planner") and not as_json:
+            say(
+                f"imaging as {chosen.source} was trained (config {resolved.config_hash()[:12]}, refiners "
+                f"{', '.join(chosen.refiners)}); --config must image alike"
+            )
         chosen_views = parse_selection(initial_views, resolved.num_views, "--initial-views")
         chosen_rotations = parse_selection(rotations, resolved.rotations, "--rotations")  # before any work
-        budgets = _margin_budgets(margins, resolved.num_views, planner)
         fixed = None
         if fixed_from is None:
             check_planners(planner, PlannerContext(resolved))  # a fixed planner: one line naming --fixed-from
@@ -200,13 +211,16 @@ def evaluate(
                 )
             )
         else:
-            say(markdown_table(rows))
+            _show(*table_cells(rows), markdown_table(rows))
             if per_object:
                 say("")
-                say(markdown_table(per_object_rows(episodes, tau)))
+                _show(*table_cells(per_object_rows(episodes, tau)), markdown_table(per_object_rows(episodes, tau)))
             if budgets:
+                margins_found = margin_rows(episodes, budgets)
                 say("")
-                say(margin_table(margin_rows(episodes, budgets)))
+                for line in MARGIN_LEGEND:
+                    say(f"  {line}")
+                _show(MARGIN_COLUMNS, margin_cells(margins_found), margin_table(margins_found))
             refine: dict[str, list[float]] = {}
             for outcome in result.outcomes:
                 for name, times in outcome.refine_seconds.items():
@@ -219,6 +233,15 @@ def evaluate(
                 say(f"figures: {png} and {sum(len(o.pictures) for o in result.outcomes)} per-object pictures beside it")
         if result.all_failures:
             raise typer.Exit(EXIT_SOME_FAILED)
+
+
+def _show(header: list[str], cells: list[list[str]], markdown: str) -> None:
+    """A table drawn to fit the terminal (ids whole, long cells folded), or as Markdown into a pipe or a
+    file, where it pastes into a README."""
+    if console.is_terminal:
+        print_rows(header, [list(row) for row in cells], whole=["planner"])
+    else:
+        say(markdown)
 
 
 def _margin_budgets(text: str | None, num_views: int, planners: list[str]) -> list[int]:

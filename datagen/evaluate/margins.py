@@ -79,6 +79,8 @@ class MarginRow:
     """margin / ceiling_margin (NaN when the ceiling has no room)."""
     views_to: dict[float, float]
     """Mean views to reach each of `SHARES`, over the runs that reach it."""
+    reached: dict[float, int] | None = None
+    """How many of the runs reach each of `SHARES` at all (None: every run)."""
 
     def as_dict(self) -> dict[str, object]:
         data: dict[str, object] = {
@@ -92,6 +94,7 @@ class MarginRow:
             data[name] = None if math.isnan(value) else round(value, 6)
         for share, value in self.views_to.items():
             data[f"views_to_{share:g}"] = None if math.isnan(value) else round(value, 4)
+            data[f"reached_{share:g}"] = self.runs if self.reached is None else self.reached[share]
         return data
 
 
@@ -177,6 +180,7 @@ def _row(
         ceiling_margin=room,
         captured=margin / room if room > 1e-9 else math.nan,
         views_to={share: (sum(reach[share]) / len(reach[share]) if reach[share] else math.nan) for share in SHARES},
+        reached={share: len(reach[share]) for share in SHARES},
     )
 
 
@@ -204,20 +208,51 @@ def _all_row(planner: str, views: int, rows: list[MarginRow]) -> MarginRow:
         ceiling_margin=room,
         captured=margin / room if room > 1e-9 else math.nan,
         views_to={share: mean([r.views_to[share] for r in rows]) for share in SHARES},
+        reached={share: sum(r.runs if r.reached is None else r.reached[share] for r in rows) for share in SHARES},
     )
 
 
-def margin_table(rows: Sequence[MarginRow]) -> str:
-    """The rows as Markdown: coverage, floor, ceiling and margins in percent points, captured share."""
-    columns = ["object", "planner", "views", "runs", "coverage %", "floor %", "ceiling %", "margin", "ceiling margin"]
-    columns += ["captured", *(f"views to {share:g}" for share in SHARES)]
-    lines = ["| " + " | ".join(columns) + " |", "|" + "---|" * 2 + "---:|" * (len(columns) - 2)]
+MARGIN_LEGEND = (
+    "floor: per run, the better of the best fixed view set (chosen on the training data) and views spread "
+    "from the initial one, at the same number of views",
+    "ceiling: the true gains played step by step (gain): what a planner that knew the unseen surface would see",
+    "margin: the planner's coverage minus the floor's, in points; room: the ceiling's margin",
+    "captured: margin / room over the objects: 100 % plays as well as the true gains, 0 % no better than a plan "
+    "needing no data, below 0 worse",
+    "views to 0.95 / 0.99: mean views (the initial one included) to see that share, over the runs that do; "
+    "(k/n): only k of its n runs ever do",
+)
+"""What the margin table's words mean, printed above it."""
+
+MARGIN_COLUMNS = ["object", "planner", "views", "runs", "coverage %", "floor %", "ceiling %", "margin", "room"]
+MARGIN_COLUMNS += ["captured", *(f"views to {share:g}" for share in SHARES)]
+
+
+def margin_cells(rows: Sequence[MarginRow]) -> list[list[str]]:
+    """The table's cells, one list per row, in `MARGIN_COLUMNS`' order."""
+    found = []
     for row in rows:
         cells = [row.object_name, row.planner, str(row.views), str(row.runs)]
         cells += [_number(v, 2) for v in (row.coverage, row.floor, row.ceiling, row.margin, row.ceiling_margin)]
         cells.append("-" if math.isnan(row.captured) else f"{row.captured:.0%}")
-        cells += [_number(row.views_to[share], 1) for share in SHARES]
-        lines.append("| " + " | ".join(cells) + " |")
+        cells += [_reach(row, share) for share in SHARES]
+        found.append(cells)
+    return found
+
+
+def _reach(row: MarginRow, share: float) -> str:
+    """Views to ``share``, with how many runs reach it where some never do: ``10.0 (3/48)``, ``-`` for none."""
+    reached = row.runs if row.reached is None else row.reached[share]
+    value = _number(row.views_to[share], 1)
+    if reached == 0:
+        return f"- (0/{row.runs})"
+    return value if reached >= row.runs else f"{value} ({reached}/{row.runs})"
+
+
+def margin_table(rows: Sequence[MarginRow]) -> str:
+    """The rows as Markdown: coverage, floor, ceiling and margins in percent points, captured share."""
+    lines = ["| " + " | ".join(MARGIN_COLUMNS) + " |", "|" + "---|" * 2 + "---:|" * (len(MARGIN_COLUMNS) - 2)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in margin_cells(rows)]
     return "\n".join(lines)
 
 

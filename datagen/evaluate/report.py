@@ -109,18 +109,26 @@ def per_object_rows(episodes: Sequence[Episode], tau: float | None = None) -> li
     return rows
 
 
-def markdown_table(rows: Sequence[Row]) -> str:
-    """A Markdown table (pastes into a README; reads fine in a terminal)."""
+def table_cells(rows: Sequence[Row]) -> tuple[list[str], list[list[str]]]:
+    """The table's header and cells (`markdown_table`; a terminal draws them as a table of its own)."""
     named = any(row.object_name for row in rows)
     figures = _shown_figures(rows)
     head = [*(["object"] if named else []), "refiner", "planner", *(h for _, h, _ in figures), "objects", "runs"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    found = []
     for row in rows:
         cells = [*([row.object_name] if named else []), row.refiner, row.planner]
         cells += [_mean_std(row.mean[k], row.std[k], d) for k, _, d in figures]
         runs = f"{row.runs}" + (f" ({row.approximate_paths} heuristic paths)" if row.approximate_paths else "")
         cells += [str(row.objects), runs]
-        lines.append("| " + " | ".join(cells) + " |")
+        found.append(cells)
+    return head, found
+
+
+def markdown_table(rows: Sequence[Row]) -> str:
+    """A Markdown table (pastes into a README)."""
+    head, found = table_cells(rows)
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in found]
     return "\n".join(lines)
 
 

@@ -53,3 +53,17 @@ def test_shards_ls_keeps_every_task_id_whole(tmp_path: Path, narrow: None) -> No
         assert task_id in result.stdout, (task_id, result.stdout)
     assert "…" not in result.stdout
     assert max(len(line) for line in result.stdout.splitlines()) <= 80
+
+
+def test_evaluate_draws_its_tables_to_fit_the_terminal(tmp_path: Path, narrow: None) -> None:
+    """Finding 8: the 16-column Markdown tables wrapped into noise on a terminal; there they are drawn to
+    fit (into a pipe they stay Markdown, for a README)."""
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:capsule\n")
+    args = ["evaluate", "--objects", str(objects), "-p", "gain", "-p", "spread:4", "--margins", "2", "--workers", "1"]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    drawn = [line for line in lines if line[:1] in "┏┃┡│└"]
+    assert drawn and max(len(line) for line in drawn) <= 80 and not any(line.startswith("| ") for line in lines)
+    assert any("spread:4" in line for line in lines) and "…" not in result.stdout

@@ -105,3 +105,28 @@ def test_the_cli_refuses_bad_margins_before_any_work(tmp_path) -> None:
         result = CliRunner().invoke(app, ["evaluate", "--objects", str(objects), *args])
         assert result.exit_code == 2, result.output
         assert needle in result.stderr and result.stdout == ""
+
+
+def test_views_to_a_share_say_how_many_runs_ever_reach_it() -> None:
+    """Issue 52, finding 8: "views to 0.99 = 3" over the runs that reach 99 % must not read like every
+    run did; where some never do, the cell says how many do."""
+    from datagen.evaluate.margins import MARGIN_COLUMNS, margin_cells
+
+    rows = {(r.object_name, r.planner, r.views): r for r in margin_rows(toy(), [3])}
+    planner = rows[("a", "osvp:m.pt@poco", 3)]
+    assert planner.reached == {0.95: 0, 0.99: 0}
+    gain = rows[("all", "gain", 3)]
+    cells = dict(zip(MARGIN_COLUMNS, margin_cells([gain])[0], strict=True))
+    assert cells["runs"] == "3" and cells["views to 0.95"] == "- (0/3)"
+    assert gain.as_dict()["reached_0.95"] == 0
+
+
+def test_the_cli_prints_a_legend_above_the_margins(tmp_path) -> None:
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:capsule\n")
+    result = CliRunner().invoke(
+        app, ["evaluate", "--objects", str(objects), "-p", "gain", "-p", "spread", "--margins", "2", "--workers", "1"]
+    )
+    assert result.exit_code == 0, result.output
+    for word in ("floor:", "ceiling:", "margin:", "captured:", "views to 0.95 / 0.99:"):
+        assert any(line.strip().startswith(word) for line in result.output.splitlines()), word
