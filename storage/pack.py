@@ -30,7 +30,7 @@ from typing import Any, BinaryIO
 
 import pyarrow as pa
 
-from schemas.dataset import DATASET_FILE
+from schemas.dataset import CARD_FILE, DATASET_FILE
 from schemas.index import CommitRecord
 from schemas.shard import single_file
 from storage.dataset_info import read_info
@@ -117,6 +117,8 @@ def pack_dataset(
     writer.close()
     for relative in _failure_files(source):
         target.write_atomic(relative, source.read_bytes(relative))
+    if source.exists(CARD_FILE):  # the dataset card travels with the data (`datagen shards card`)
+        target.write_atomic(CARD_FILE, source.read_bytes(CARD_FILE))
     packed = Manifest(schema_version=info.schema_version, segments=[segment], packed=True)
     target.write_atomic(MANIFEST_FILE, packed.model_dump_json(indent=1).encode())
     target.write_atomic(DATASET_FILE, source.read_bytes(DATASET_FILE))  # last: a dataset once it is there

@@ -54,7 +54,8 @@ def card(
             # every initial view's plans (a set holding the initial view is replaced as evaluate replaces it)
             runs = choose_fixed_plans(weights, url, tuple(range(dataset.num_views)), range(1, max(budgets)))
             room = training_room(url, runs, budgets, options)
-        text = card_text(url, dataset.info, dataset_stats(dataset), fixed, sources, room)
+        refiner_weights = sorted(set(dataset.counts("weights_id")) - {""})
+        text = card_text(url, dataset.info, dataset_stats(dataset), fixed, sources, room, refiner_weights)
         if out == "-":
             typer.echo(text, nl=False)
         elif out is not None:

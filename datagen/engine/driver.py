@@ -30,12 +30,14 @@ import logging
 import os
 import platform
 import socket
+import subprocess
 import time
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -208,6 +210,9 @@ def dataset_info(config: GenerationConfig) -> DatasetInfo:
             versions[package] = importlib.metadata.version(package)
         except importlib.metadata.PackageNotFoundError:
             continue
+    commit = generator_commit()
+    if commit:
+        versions["datagen_commit"] = commit
     return DatasetInfo(
         schema_version=SCHEMA_VERSION,
         config=config,
@@ -216,6 +221,28 @@ def dataset_info(config: GenerationConfig) -> DatasetInfo:
         versions=versions,
         created=datetime.now(UTC).isoformat(timespec="seconds"),
     )
+
+
+def generator_commit() -> str:
+    """The git commit of the datagen source that runs (``<40 hex>``, ``+dirty`` when it has uncommitted
+    changes), for a dataset's provenance; empty for an installed release, which its version names."""
+    source = Path(__file__).resolve().parents[2]
+    if not (source / ".git").exists():
+        return ""
+    try:
+        head = subprocess.run(
+            ["git", "-C", str(source), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "-C", str(source), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return head + ("+dirty" if dirty else "")
 
 
 def run_job(

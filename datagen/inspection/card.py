@@ -26,6 +26,10 @@ LICENCE_NOTES = ("LICENSE", "LICENCE", "SOURCES", "README", "COPYING")
 """File name starts that hold what is known of a mesh folder's origin and terms."""
 
 
+OBJECTS_LISTED = 500
+"""Objects named one by one on a card; a larger dataset's card says how many more there are."""
+
+
 @dataclass(frozen=True)
 class MeshSource:
     """Where one group of a dataset's meshes came from."""
@@ -85,18 +89,22 @@ def card_text(
     fixed: list[FixedRow] | None,
     sources: list[MeshSource] | None,
     room: list[Room] | None = None,
+    weights: list[str] | None = None,
 ) -> str:
-    """The card as Markdown."""
+    """The card as Markdown (``weights``: the refiner weights its samples name, from the index)."""
     config = info.config
+    commit = info.versions.get("datagen_commit")
+    made = f"datagen {info.versions.get('datagen', '?')}" + (f" at commit `{commit}`" if commit else "")
     lines = [
         f"# Dataset card: {Path(url).name or url}",
         "",
-        f"Made by datagen {info.versions.get('datagen', '?')} (`datagen shards card`); schema version "
-        f"{info.schema_version}; config hash `{info.config_hash}`; created {info.created}.",
+        f"Made by {made} (card by `datagen shards card`); schema version {info.schema_version}; config hash "
+        f"`{info.config_hash}`; created {info.created}.",
         "",
         "## Protocol",
         "",
         *_protocol(config),
+        *([f"- refiner weights (sha256, as each sample records them): {', '.join(weights)}"] if weights else []),
         "",
         "## Counts",
         "",
@@ -142,12 +150,21 @@ def card_text(
             "the initial one; the ceiling is the true gains played step by step (`datagen evaluate -p gain`).",
             "Their difference is what a planner could add here (`datagen evaluate --margins` on unseen meshes).",
             "",
-            "| views | cases | fixed % | spread % | floor % | ceiling % | margin (points) |",
+            "The floor is taken case by case: the better of the fixed set and spread views in each case, so",
+            "its mean is at least the better of the two columns' means.",
+            "",
+            "| views | cases | fixed % | spread % | floor % (per case) | ceiling % | margin (points) |",
             "|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for r in room:
             cells = (r.fixed, r.spread, r.floor, r.ceiling, r.margin)
             lines.append(f"| {r.views} | {r.cases:,} | " + " | ".join(f"{v:.2f}" for v in cells) + " |")
+    lines += ["", "## Objects", ""]
+    named = sorted(stats.samples_per_object.items())
+    lines += [f"{len(named):,} objects (name: samples):", ""]
+    lines += [f"- {name}: {count:,}" for name, count in named[:OBJECTS_LISTED]]
+    if len(named) > OBJECTS_LISTED:
+        lines.append(f"- and {len(named) - OBJECTS_LISTED:,} more (`datagen shards stats URL` lists every one)")
     lines += ["", "## Mesh sources", ""]
     if sources is None:
         lines.append("Not listed: give the job's objects file (`datagen shards card URL --objects FILE`).")

@@ -93,6 +93,12 @@ def test_the_card_states_the_protocol_beside_the_data_and_export_copies_it(
     ):
         assert line in card, (line, card)
     assert str(engine_dataset.objects_file.parent) not in card  # the broken mesh made no samples: not listed
+    # issue 52, finding 9: the objects, the generator's commit and what "floor" means
+    for name, count in sorted(dataset.counts("object_name").items()):
+        assert f"- {name}: {count:,}" in card, name
+    commit = dataset.info.versions.get("datagen_commit")
+    assert commit and re.fullmatch(r"[0-9a-f]{40}(\+dirty)?", commit) and f"at commit `{commit}`" in card
+    assert "The floor is taken case by case: the better of the fixed set and spread views in each case" in card
     rows = re.findall(r"^\| (\d+) \| ([\d, ]+) \| ([\d.]+)% \| (yes|greedy) \|$", card, re.M)
     assert [int(size) for size, *_ in rows] == list(range(1, 11))
     coverage = [float(share) for _, _, share, _ in rows]
@@ -118,6 +124,11 @@ def test_the_card_states_the_protocol_beside_the_data_and_export_copies_it(
     done = runner.invoke(app, ["shards", "export", str(copy), str(exported), "--layout", "mascvp"])
     assert done.exit_code == 0, done.output
     assert (exported / "README.md").read_text() == card
+    packed = tmp_path / "packed"
+    done = runner.invoke(app, ["shards", "pack", str(copy), "--out", str(packed)])
+    assert done.exit_code == 0, done.output
+    assert (packed / "README.md").read_text() == card  # the card travels in the pack too
+    assert runner.invoke(app, ["shards", "validate", str(packed)]).exit_code == 0
 
 
 def test_mesh_sources_name_each_folder_and_the_licence_notes_beside_it(tmp_path: Path) -> None:
@@ -133,3 +144,19 @@ def test_mesh_sources_name_each_folder_and_the_licence_notes_beside_it(tmp_path:
     ]
     assert sources[1].notes == ()
     assert sources[2].notes == (str(tmp_path / "scans" / "LICENSE.txt"),)  # found in the folder above
+
+
+def test_the_card_names_the_refiner_weights_its_samples_record(tmp_path: Path) -> None:
+    """A POCO dataset's card names the weights every sample records (its index's weights_id), so a
+    reader knows which network refined it without the generator installed."""
+    from support import storage as fx
+
+    from datagen.inspection.card import card_text
+    from datagen.inspection.stats import dataset_stats
+
+    url = str(tmp_path / "ds")
+    fx.build_dataset(url, finalise_index=True)
+    dataset = open_dataset(url)
+    text = card_text(url, dataset.info, dataset_stats(dataset), None, None, None, ["sha256:" + "ab" * 32])
+    assert f"- refiner weights (sha256, as each sample records them): sha256:{'ab' * 32}" in text
+    assert "refiner weights" not in card_text(url, dataset.info, dataset_stats(dataset), None, None, None, [])
