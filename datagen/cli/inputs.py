@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import statistics
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -26,6 +25,7 @@ from datagen.errors import DatagenError, OutputError
 from datagen.pipeline.thread_limits import single_threaded_blas
 
 if TYPE_CHECKING:
+    from datagen.pipeline.objects.scan import MeshCheck
     from datagen.pipeline.objects.spec import ObjectSpec
     from schemas.config import GenerationConfig
 
@@ -179,6 +179,10 @@ def objects_scan(
         )
         if result.skipped:
             print_rows(["skipped", "why"], [[str(s.path), Text(s.reason, style="red")] for s in result.skipped], report)
+        for warned in result.warnings:
+            error_console.print(
+                f"warning: {warned.path}: {warned.reason}", markup=False, highlight=False, soft_wrap=True
+            )
 
 
 def objects_split(
@@ -227,18 +231,21 @@ def relative_path_text(path: Path, folder: Path) -> str:
     return relative_path(path.absolute(), folder)
 
 
-def _mesh_check(config: GenerationConfig) -> Callable[[Path], str | None]:
-    """``objects scan --check``: the one-line reason a mesh file cannot be made into an object."""
+def _mesh_check(config: GenerationConfig) -> MeshCheck:
+    """``objects scan --check``: the one-line reason a mesh file cannot be made into an object, or the
+    warning `objects show` gives a mesh that can (a flat one)."""
     from datagen.pipeline.objects.prepare import prepare_object
+    from datagen.pipeline.objects.scan import Verdict
     from datagen.pipeline.objects.spec import ObjectOptions, ObjectSpec
 
-    def check(path: Path) -> str | None:
+    def check(path: Path) -> Verdict:
         spec = ObjectSpec(source=str(path), name=path.stem, options=ObjectOptions(), object_id="")
         try:
-            prepare_object(spec, config)
+            prepared = prepare_object(spec, config)
         except DatagenError as error:
-            return str(error).removeprefix(f"{path}: ")
-        return None
+            return Verdict(refused=str(error).removeprefix(f"{path}: "))
+        flat = prepared.flat_warning()
+        return Verdict(warning=flat.removeprefix(f"{path.stem}: ") if flat else None)
 
     return check
 

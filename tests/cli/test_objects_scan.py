@@ -114,10 +114,10 @@ def tree(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, tupl
 
 
 def skipped_rows(text: str) -> dict[str, str]:
-    """The tab-separated skipped summary: path -> reason."""
+    """The tab-separated skipped summary: path -> reason (the warning lines after it left out)."""
     lines = text.splitlines()
     start = lines.index("skipped\twhy")
-    return dict(line.split("\t") for line in lines[start + 1 :])
+    return dict(line.split("\t") for line in lines[start + 1 :] if not line.startswith("warning: "))
 
 
 def test_scan_lists_a_10000_file_tree(tree, tmp_path: Path) -> None:
@@ -237,6 +237,8 @@ def test_scan_check_loads_each_mesh_and_names_the_broken_one_in_a_plain_line(odd
     reason = skipped[str(odd_folder / "broken.off")]
     assert reason.startswith("not a readable mesh (") and "Traceback" not in result.stderr
     assert reason.endswith("give an OBJ, PLY, STL, OFF or GLB file with faces")
+    (warning,) = [line for line in result.stderr.splitlines() if line.startswith("warning:")]
+    assert warning.startswith(f"warning: {odd_folder / 'flat.obj'}: flat (thinnest extent")  # listed, but named
 
 
 def test_objects_show_warns_of_a_flat_mesh(odd_folder: Path, tmp_path: Path) -> None:
@@ -261,3 +263,25 @@ def test_scan_help_no_longer_says_submit_does_not_exist() -> None:
     text = " ".join(result.stdout.split())
     assert "until" not in text and "exists" not in text
     assert "before a `datagen submit`" in text or "before a datagen submit" in text
+
+
+def test_scan_check_warns_of_a_flat_mesh_keeps_the_originals_name_and_names_a_truncated_file(
+    tmp_path: Path, runner
+) -> None:
+    """Issue 52, finding 10: `objects scan --check` warns of a flat mesh as `objects show` does; of two
+    byte-identical files it lists the original (``cow.off``, not ``cow-copy.off``, which sorts first);
+    and a truncated OFF is named as such, not by numpy's reshape message."""
+    box = trimesh.creation.box(extents=(0.1, 0.08, 0.06)).export(file_type="off")
+    (tmp_path / "cow.off").write_text(box)
+    (tmp_path / "cow-copy.off").write_text(box)
+    (tmp_path / "broken.off").write_text(box[: len(box) // 2])
+    (tmp_path / "sheet.obj").write_text(trimesh.creation.box(extents=(0.1, 0.1, 0.0005)).export(file_type="obj"))
+    result = runner.invoke(app, ["objects", "scan", str(tmp_path), "--check", "--out", str(tmp_path / "objects.txt")])
+    assert result.exit_code == 0, result.output
+    listed = [spec.name for spec in read_objects_file(tmp_path / "objects.txt").objects]
+    assert listed == ["cow", "sheet"]
+    assert f"{tmp_path / 'cow-copy.off'}\tthe same bytes as cow.off, which is listed" in result.output
+    (broken,) = [line for line in result.output.splitlines() if "broken.off" in line]
+    assert "truncated or damaged" in broken and "reshape" not in broken
+    (warning,) = [line for line in result.output.splitlines() if line.startswith("warning:")]
+    assert warning.startswith(f"warning: {tmp_path / 'sheet.obj'}: flat (thinnest extent 0.50% of its size)")

@@ -7,6 +7,7 @@ fix; the caller records it and goes on with the other objects.
 from __future__ import annotations
 
 import math
+import struct
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,7 +96,7 @@ def load_mesh(spec: ObjectSpec) -> trimesh.Trimesh:
             warnings.simplefilter("ignore")
             loaded = trimesh.load(str(path), force="mesh", process=False, skip_materials=True)
     except Exception as exc:  # trimesh raises many types for unreadable files
-        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        reason = _load_failure(exc)
         raise ObjectError(
             f"{path}: not a readable mesh ({reason}); give an OBJ, PLY, STL, OFF or GLB file with faces"
         ) from None
@@ -105,6 +106,20 @@ def load_mesh(spec: ObjectSpec) -> trimesh.Trimesh:
             "mesh, not a point cloud"
         )
     return loaded
+
+
+TRUNCATED = "the file ends before the vertices and faces its header counts: truncated or damaged"
+"""What a parser's shape error means to a user: numpy's "cannot reshape array of size 15 into shape
+(8,3)" is what a truncated OFF, PLY or STL file gives."""
+
+
+def _load_failure(exc: Exception) -> str:
+    """The loader's failure in one line a user can act on."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    shape_error = ("cannot reshape", "buffer is smaller", "index", "out of bounds", "unpack requires")
+    if isinstance(exc, ValueError | IndexError | struct.error) and any(word in text for word in shape_error):
+        return TRUNCATED
+    return text
 
 
 def _load_strip_ply(path: Path) -> trimesh.Trimesh:

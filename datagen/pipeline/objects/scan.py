@@ -73,6 +73,8 @@ class ScanResult:
     skipped: tuple[SkippedFile, ...]
     companions: int
     """Materials, textures and other files that come with meshes, left out without a line each."""
+    warnings: tuple[SkippedFile, ...] = ()
+    """Listed meshes a check warns about (a flat mesh: every view sees nearly all of it), with why."""
 
     @property
     def categories(self) -> list[str]:
@@ -136,7 +138,15 @@ SNIFFERS: dict[str, Callable[[bytes, Path], str | None]] = {
 check that returns why a file is not such a mesh, or None."""
 
 
-MeshCheck = Callable[[Path], "str | None"]
+@dataclass(frozen=True)
+class Verdict:
+    """What a mesh check says of one file: why it is left out, or a warning for a mesh that is listed."""
+
+    refused: str | None = None
+    warning: str | None = None
+
+
+MeshCheck = Callable[[Path], Verdict]
 """Loads a mesh file; the reason it cannot be used (one line), or None."""
 
 
@@ -171,22 +181,29 @@ def scan_meshes(root: str | Path, check: MeshCheck | None = None) -> ScanResult:
     for relative, original in sorted(copies.items()):
         skipped.append(SkippedFile(root / relative, f"the same bytes as {original.as_posix()}, which is listed"))
     meshes = [(relative, category) for relative, category in meshes if relative not in copies]
+    warned: list[SkippedFile] = []
     if check is not None:
-        refused = {relative: check(root / relative) for relative, _ in meshes}
-        skipped += [SkippedFile(root / relative, reason) for relative, reason in refused.items() if reason]
-        meshes = [(relative, category) for relative, category in meshes if not refused[relative]]
+        verdicts = {relative: check(root / relative) for relative, _ in meshes}
+        skipped += [SkippedFile(root / r, v.refused) for r, v in verdicts.items() if v.refused]
+        warned += [SkippedFile(root / r, v.warning) for r, v in verdicts.items() if v.warning and not v.refused]
+        meshes = [(relative, category) for relative, category in meshes if not verdicts[relative].refused]
     names = _unique_names([relative for relative, _ in meshes])
     listed = tuple(
         ScannedMesh(path=root / relative, name=name, category=category)
         for (relative, category), name in zip(meshes, names, strict=True)
     )
     return ScanResult(
-        root=root, meshes=listed, skipped=tuple(sorted(skipped, key=lambda s: s.path)), companions=companions
+        root=root,
+        meshes=listed,
+        skipped=tuple(sorted(skipped, key=lambda s: s.path)),
+        companions=companions,
+        warnings=tuple(sorted(warned, key=lambda s: s.path)),
     )
 
 
 def _byte_copies(root: Path, files: list[Path]) -> dict[Path, Path]:
-    """Each file whose bytes equal an earlier one's (in the given order) -> that earlier file. Only
+    """Each file whose bytes equal another's -> the one listed instead: the original, taken to be the
+    one of the shortest name (``cow.obj`` over ``cow-copy.obj``, which sorts first), then by path. Only
     files sharing a size are hashed, so a tree of distinct meshes is read no further than its headers."""
     by_size: dict[int, list[Path]] = {}
     for relative in files:
@@ -199,7 +216,7 @@ def _byte_copies(root: Path, files: list[Path]) -> dict[Path, Path]:
         if len(group) < 2:
             continue
         first: dict[str, Path] = {}
-        for relative in group:
+        for relative in sorted(group, key=lambda path: (len(path.stem), path.as_posix())):
             digest = _sha256(root / relative)
             if digest is None:
                 continue
