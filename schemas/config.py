@@ -176,6 +176,10 @@ class GenerationConfig(_Frozen):
     # Section 7: labels
     empty_labels: Literal["keep", "drop"] = "keep"
     solver_time_limit: PositiveFloat = 10.0
+    """Seconds of wall clock a single solve may run before its task fails and is run again (at least
+    600 s: `datagen.pipeline.setcover.SAFETY_NET_SECONDS`). Only a safety net: whether a case gets a
+    label is decided by node budgets, the same on every machine; this value stays in the hash for the
+    datasets made when it decided."""
     label_tie_break: Literal["index", "coverage"] = "index"
     """Which of the equally small covers is the label: 'index' (the lexicographically smallest view
     indices, docs/pipeline.md section 7) or 'coverage' (lexicographically smallest with views ranked by how many

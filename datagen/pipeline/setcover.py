@@ -63,12 +63,30 @@ SEARCH_NODE_BUDGET = 500_000
 over; a count, not a time, so that which path runs never depends on the machine. The hardest
 built-in needs at most ~18,000."""
 
+HIGHS_NODE_LIMIT = 100_000
+"""Branch-and-bound nodes HiGHS may spend on one model (``mip_max_nodes``): the work budget that
+decides, the same on every machine, whether a case gets a label; a case past it is left out and
+recorded, as on any other machine."""
+HIGHS_ITERATION_LIMIT = 10_000_000
+"""Simplex iterations one HiGHS solve may spend (``simplex_iteration_limit``): a count, like the nodes."""
+SAFETY_NET_SECONDS = 600.0
+"""The least wall-clock time a solve gets (the config's ``solver_time_limit`` may raise it): only a
+safety net against a machine gone wrong, never what decides a label. Its breach fails the task
+(`SolverTimeLimit`), which is run again like any failed task, so a slow or loaded machine can never
+make a dataset with fewer samples."""
+
 PACKING_ROWS = 256
 """Narrowest rows the packing bound looks at (a bound from fewer rows is weaker, never wrong)."""
 
 
+class SolverTimeLimit(DatagenError):
+    """A solve ran past the wall-clock safety net: the task fails loudly, naming the case, and is run
+    again like any failed task; never a case left out (what the clock decides is not reproducible)."""
+
+
 class LabelError(DatagenError):
-    """A label could not be proven optimal (time limit, solver failure): the sample is not written."""
+    """A label could not be proven optimal within the work budgets (`HIGHS_NODE_LIMIT`, the search's
+    nodes) or the solver failed: the sample is not written, on every machine alike."""
 
 
 @dataclass(frozen=True)
@@ -565,7 +583,9 @@ def highs_solver(threads: int, time_limit: float) -> highspy.Highs:
     solver = highspy.Highs()
     solver.setOptionValue("output_flag", False)
     solver.setOptionValue("threads", threads)
-    solver.setOptionValue("time_limit", float(time_limit))
+    solver.setOptionValue("time_limit", max(float(time_limit), SAFETY_NET_SECONDS))
+    solver.setOptionValue("mip_max_nodes", HIGHS_NODE_LIMIT)
+    solver.setOptionValue("simplex_iteration_limit", HIGHS_ITERATION_LIMIT)
     solver.setOptionValue("mip_rel_gap", 0.0)
     solver.setOptionValue("mip_abs_gap", 0.0)
     solver.setOptionValue("random_seed", 0)
@@ -648,8 +668,14 @@ def _run_model(
     status = solver.getModelStatus()
     if status == highspy.HighsModelStatus.kInfeasible:
         return None
+    if status == highspy.HighsModelStatus.kTimeLimit:
+        limit = float(solver.getOptionValue("time_limit")[1])
+        raise SolverTimeLimit(f"HiGHS ran past the wall-clock safety net of {limit:g} s without an answer")
     if status != highspy.HighsModelStatus.kOptimal:
-        raise LabelError(f"HiGHS did not prove optimality ({solver.modelStatusToString(status)})")
+        raise LabelError(
+            f"HiGHS did not prove optimality within its work budget ({solver.modelStatusToString(status)}; "
+            f"{HIGHS_NODE_LIMIT:,} nodes)"
+        )
     return list(solver.getSolution().col_value)
 
 

@@ -27,7 +27,7 @@ from datagen.pipeline.occupancy import ViewGrids, view_grids
 from datagen.pipeline.random_streams import Purpose, stream
 from datagen.pipeline.refine.base import Refiner, RefineRequest, refined_keys
 from datagen.pipeline.scanning import scan_task
-from datagen.pipeline.setcover import CoverResult, LabelError, TaskCover
+from datagen.pipeline.setcover import CoverResult, LabelError, SolverTimeLimit, TaskCover
 from datagen.pipeline.step_timing import StepClock, timed
 from datagen.pipeline.viewspace import ViewSpace
 from schemas.config import GenerationConfig
@@ -316,8 +316,10 @@ def label_cases(
     for case in cases:
         try:
             labels[case] = solver.label(case, threads)
-        except LabelError as exc:
+        except LabelError as exc:  # past a work budget: the same on every machine, recorded in the shard
             failures.append(CaseFailure(case=case, message=str(exc)))
+        except SolverTimeLimit as exc:  # the clock: fail the task (run again), never leave the case out
+            raise SolverTimeLimit(f"case {case:016x} (views {', '.join(map(str, _views(case)))}): {exc}") from None
     return labels, failures
 
 
