@@ -10,10 +10,9 @@ from datagen.config_io import load_config
 from datagen.engine import serve as serve_loop
 from datagen.engine.driver import ProgressCallback, check_output, run_job
 from datagen.engine.job_plan import plan_job
-from datagen.engine.serve import LEDGER_FILE, ledger_for
 from datagen.engine.worker import TaskBody, execute_task
 from datagen.errors import DatagenError, ObjectsFileError
-from datagen.settings import RunSettings
+from datagen.settings import LEDGER_FILE, RunSettings, ledger_for
 from jobs.ledger import Job, LedgerError
 from schemas.config import GenerationConfig
 

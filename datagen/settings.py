@@ -12,7 +12,10 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from storage import is_s3
+from jobs.ledger import Ledger
+
+LEDGER_FILE = "ledger.db"
+"""The ledger's file name inside the home folder (``RunSettings.home``)."""
 
 
 def _env_number(name: str, default: float) -> float:
@@ -50,6 +53,8 @@ class RunSettings(BaseModel):
     def storage_options(self, url: str) -> dict[str, Any]:
         """fsspec options for a dataset URL: request timeouts and retries for S3, so an unreachable
         store or refused credentials fail the job after a bounded time instead of hanging."""
+        from storage import is_s3  # fsspec loads with it: not at every command's start
+
         if not is_s3(url):
             return {}
         return {
@@ -59,3 +64,9 @@ class RunSettings(BaseModel):
                 "retries": {"max_attempts": self.storage_retries, "mode": "standard"},
             }
         }
+
+
+def ledger_for(settings: RunSettings) -> Ledger:
+    """The job ledger of a home folder (``HOME/ledger.db``), created when missing: what `status`,
+    `cancel` and the drivers open, without loading the engine."""
+    return Ledger(Path(settings.home) / LEDGER_FILE)

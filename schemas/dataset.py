@@ -43,3 +43,7 @@ class DatasetInfo(BaseModel):
             "config_hash": self.config_hash,
             "views": self.num_views,
         }
+
+
+PACK_BYTES = 512 * 1024**2
+"""About how large each tar file of a packed dataset is, by default (`storage.pack`, ``--pack-mb``)."""

@@ -10,4 +10,5 @@ python -m pip install -q --upgrade pip
 python -m pip install -q "torch==2.13.0"
 # One resolve for the three distributions of the checkout: datagen-reader (storage, schemas), the
 # generator (datagen, needs the reader) and the osvp trainer (needs only the reader).
-python -m pip install -q -e ./reader -e ".[test]" -e "./osvp[test]"
+# -qq: errors only; setuptools' editable-install notice is printed once per package otherwise.
+python -m pip install -qq -e ./reader -e ".[test]" -e "./osvp[test]"

@@ -30,7 +30,7 @@ from typing import Any, BinaryIO
 
 import pyarrow as pa
 
-from schemas.dataset import CARD_FILE, DATASET_FILE
+from schemas.dataset import CARD_FILE, DATASET_FILE, PACK_BYTES
 from schemas.index import CommitRecord
 from schemas.shard import single_file
 from storage.dataset_info import read_info
@@ -41,7 +41,7 @@ from storage.store_errors import check_store
 from storage.writer import FAILURES, holds_dataset
 
 PACKS = "packs"
-DEFAULT_PACK_BYTES = 512 * 1024**2
+DEFAULT_PACK_BYTES = PACK_BYTES
 SHARD_MEMBER = ".zarr.zip"
 INDEX_MEMBER = ".index.parquet"
 READ_AHEAD = 16

@@ -7,16 +7,27 @@ Command modules import this module and nothing else from `datagen.cli`; `datagen
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable, Iterator
+import os
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    Task,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 from rich.table import Table
 from rich.text import Text
+from typer.core import TyperCommand
 
 from schemas.errors import DatagenError
 
@@ -58,11 +69,31 @@ def _print_error(message: str) -> None:
     raise typer.Exit(EXIT_USER_ERROR)
 
 
+def lazy_help(**fillers: Callable[[], str]) -> type[TyperCommand]:
+    """A command class whose options' help is written when help is shown (``fillers``: option name ->
+    its help), from registries that import what a command runs (planners, refiners, export layouts):
+    only ``--help`` pays for them, never every command's start."""
+
+    class LazyHelpCommand(TyperCommand):
+        def format_help(self, ctx: Any, formatter: Any) -> None:
+            for param in self.params:
+                if param.name in fillers:
+                    param.help = fillers[param.name]()  # type: ignore[attr-defined]
+            super().format_help(ctx, formatter)
+
+    return LazyHelpCommand
+
+
 def dataset_options(url: str) -> dict[str, Any]:
     """fsspec options of a dataset URL: the bounded timeouts and retries of `RunSettings`."""
     from datagen.settings import RunSettings
 
     return RunSettings().storage_options(url)
+
+
+def plural(count: int, noun: str) -> str:
+    """``1 task``, ``2 tasks``: a count and its noun, as people write them."""
+    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def say(text: str) -> None:
@@ -134,10 +165,79 @@ def _plain(cell: object) -> str:
 
 def progress_bar(remaining: bool = False) -> Progress:
     """A transient bar for a long command (``remaining``: with the time left); off a terminal (a pipe,
-    a log) one progress line per interval instead (`datagen.cli.progress.IntervalProgress`)."""
-    from datagen.cli.progress import IntervalProgress
-
+    a log) one progress line per interval instead (`IntervalProgress`)."""
     columns = [TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn()]
     if remaining:
         columns.append(TimeRemainingColumn())
     return IntervalProgress(*columns, console=console, transient=True)
+
+
+# -- progress that suits a terminal and a log alike ---------------------------------------------------------
+# On a terminal a long command draws rich's live bar. Into a pipe or a file (a batch job's log, nohup, CI)
+# a bar is noise and nothing is hours of silence: there `IntervalProgress` writes one plain line every
+# interval instead, with what the bar shows.
+
+PROGRESS_SECONDS = 30.0
+"""Seconds between two progress lines off a terminal (``DATAGEN_PROGRESS_SECONDS`` overrides)."""
+
+
+def progress_seconds() -> float:
+    """The interval between progress lines off a terminal, from the environment or `PROGRESS_SECONDS`."""
+    try:
+        value = float(os.environ.get("DATAGEN_PROGRESS_SECONDS", PROGRESS_SECONDS))
+    except ValueError:
+        return PROGRESS_SECONDS
+    return value if value > 0 else PROGRESS_SECONDS
+
+
+class IntervalProgress(Progress):
+    """A rich `Progress` that, when its live display is off (not a terminal), logs a line per interval."""
+
+    def __init__(self, *columns: Any, console: Console, interval: float | None = None, **kwargs: Any) -> None:
+        self.logs = not console.is_terminal
+        super().__init__(*columns, console=console, disable=self.logs, **kwargs)
+        self.interval = progress_seconds() if interval is None else interval
+        self._last = self.get_time()
+
+    def update(self, task_id: TaskID, **kwargs: Any) -> None:
+        super().update(task_id, **kwargs)
+        self._log()
+
+    def advance(self, task_id: TaskID, advance: float = 1) -> None:
+        super().advance(task_id, advance)
+        self._log()
+
+    def _log(self) -> None:
+        if not self.logs or self.get_time() - self._last < self.interval:
+            return
+        self._last = self.get_time()
+        for task in self.tasks:
+            self.console.print(progress_line(task), markup=False, highlight=False, soft_wrap=True)
+
+
+def progress_line(task: Task) -> str:
+    """``tasks: 812/1,368 (59 %), 41,233 samples, 0 failed; 5.1 a second, about 1 min 49 s left``."""
+    done = int(task.completed)
+    parts = [f"{task.description}: {done:,}" + (f"/{int(task.total):,}" if task.total else "")]
+    if task.total:
+        parts[0] += f" ({100 * task.completed / task.total:.0f} %)"
+    parts += [
+        f"{value:,} {name}" if isinstance(value, int) else f"{value} {name}" for name, value in task.fields.items()
+    ]
+    line = ", ".join(parts)
+    speed, left = task.speed, task.time_remaining
+    if speed:
+        line += f"; {speed:.3g} a second"
+        if left is not None:
+            line += f", about {duration(left)} left"
+    return line
+
+
+def duration(seconds: float) -> str:
+    """``45 s``, ``3 min 20 s``, ``2 h 05 min``."""
+    whole = max(0, round(seconds))
+    if whole < 60:
+        return f"{whole} s"
+    if whole < 3600:
+        return f"{whole // 60} min {whole % 60} s"
+    return f"{whole // 3600} h {(whole % 3600) // 60:02d} min"

@@ -9,24 +9,23 @@ import json
 import os
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
-from typer.core import TyperCommand
 
 from datagen.cli.common import (
     ConfigOption,
     console,
     dataset_options,
     error_console,
+    lazy_help,
+    plural,
     print_rows,
     progress_bar,
     say,
     user_errors,
 )
-from datagen.config_io import load_config
 from datagen.errors import InvalidArgument
-from schemas.config import GenerationConfig
 
 EXIT_SOME_FAILED = 1
 
@@ -44,17 +43,6 @@ def _planner_help(load: bool = False) -> str:
     )
 
 
-class EvaluateCommand(TyperCommand):
-    """``datagen evaluate``: its --help lists the planners each plug-in offers (``shipped:nbv``), which
-    loads the plug-ins; only help being shown pays for that, not every command's start."""
-
-    def format_help(self, ctx: Any, formatter: Any) -> None:
-        for param in self.params:
-            if param.name == "planner":
-                param.help = _planner_help(load=True)  # type: ignore[attr-defined]
-        super().format_help(ctx, formatter)
-
-
 def _refiner_help() -> str:
     """``--refiner``'s help, from the refiner registry (`datagen.pipeline.refine.factory.BUILDERS`)."""
     from datagen.pipeline.refine.factory import BUILDERS
@@ -70,13 +58,13 @@ def evaluate(
         typer.Option(
             "--planner",
             "-p",
-            help=_planner_help(),
+            help="The planners: see --help.",
         ),
     ],
     config: ConfigOption = None,
     refiner: Annotated[
         list[str] | None,
-        typer.Option("--refiner", "-r", help=_refiner_help()),
+        typer.Option("--refiner", "-r", help="The refiners: see --help."),
     ] = None,
     initial_views: Annotated[
         str, typer.Option("--initial-views", help="Initial view ids: 'all', '0,8,16' or '0-3'.")
@@ -133,7 +121,9 @@ def evaluate(
     from datagen.evaluate.run import EvaluationSpec, ObjectOutcome, check_planners, evaluate, parse_selection
 
     with user_errors(fixed_from):
+        from datagen.config_io import load_config
         from datagen.evaluate.planner_config import resolve_evaluation_config
+        from schemas.config import GenerationConfig
 
         given = load_config(config) if config is not None else None
         if budget_views is not None and budget_views < 1:
@@ -227,7 +217,8 @@ def evaluate(
                     refine.setdefault(name, []).extend(times)
             seconds = ", ".join(f"{name} {sum(v) / len(v):.1f} s" for name, v in refine.items() if v)
             objects_done = sum(1 for o in result.outcomes if o.episodes)
-            took = f"{len(episodes)} runs on {objects_done} objects in {time.perf_counter() - started:.0f} s"
+            seconds_taken = time.perf_counter() - started
+            took = f"{plural(len(episodes), 'run')} on {plural(objects_done, 'object')} in {seconds_taken:.0f} s"
             say(took + (f"; refining every view of a scene: {seconds}" if seconds else ""))
             if png is not None and episodes:
                 say(f"figures: {png} and {sum(len(o.pictures) for o in result.outcomes)} per-object pictures beside it")
@@ -242,6 +233,11 @@ def _show(header: list[str], cells: list[list[str]], markdown: str) -> None:
         print_rows(header, [list(row) for row in cells], whole=["planner"])
     else:
         say(markdown)
+
+
+EvaluateCommand = lazy_help(planner=lambda: _planner_help(load=True), refiner=lambda: _refiner_help())
+"""``datagen evaluate``: its --help lists every planner kind and the names each plug-in offers
+(``shipped:nbv``), and the refiners, loading their registries only then."""
 
 
 def _margin_budgets(text: str | None, num_views: int, planners: list[str]) -> list[int]:

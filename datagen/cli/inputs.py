@@ -12,17 +12,24 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 from rich.text import Text
 
-from datagen.cli.common import Cell, ConfigOption, console, error_console, print_rows, print_table, say, user_errors
-from datagen.cli.progress import IntervalProgress
-from datagen.config_io import config_to_toml, load_config
+from datagen.cli.common import (
+    Cell,
+    ConfigOption,
+    IntervalProgress,
+    console,
+    error_console,
+    plural,
+    print_rows,
+    print_table,
+    say,
+    user_errors,
+)
 from datagen.errors import DatagenError, OutputError
-from datagen.pipeline.thread_limits import single_threaded_blas
 
 if TYPE_CHECKING:
     from datagen.pipeline.objects.scan import MeshCheck
@@ -32,6 +39,8 @@ if TYPE_CHECKING:
 
 def config_show(config: ConfigOption = None) -> None:
     """Print the resolved generation config as TOML, with its hash."""
+    from datagen.config_io import config_to_toml, load_config
+
     with user_errors():
         resolved = load_config(config)
         console.print(f"# config hash: {resolved.config_hash()}", markup=False, highlight=False)
@@ -54,8 +63,10 @@ def objects_show(
     config: ConfigOption = None,
 ) -> None:
     """Resolve and prepare every line of an objects file; show each object or the line's error."""
+    from datagen.config_io import load_config
     from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
     from datagen.pipeline.objects.prepare import prepare_object
+    from datagen.pipeline.thread_limits import single_threaded_blas
 
     with user_errors(), single_threaded_blas():
         resolved = load_config(config)
@@ -149,7 +160,9 @@ def objects_scan(
     """Write an objects file listing every mesh under FOLDER, named by its path, with its category where
     the layout has one; name each file left out and why (byte-identical copies of a listed file too).
     Reads only each file's header, unless --check."""
+    from datagen.config_io import load_config
     from datagen.pipeline.objects.scan import SNIFFERS, scan_listing, scan_meshes
+    from datagen.pipeline.thread_limits import single_threaded_blas
 
     with user_errors(), single_threaded_blas():
         result = scan_meshes(folder, _mesh_check(load_config(config)) if check else None)
@@ -276,9 +289,13 @@ def scan(
     Steps 0-3 of the pipeline alone (no refinement, labels or dataset): a quick look at what each
     view of each object sees before a `datagen submit`.
     """
+    import numpy as np
+
+    from datagen.config_io import load_config
     from datagen.pipeline.objects.objects_file import read_objects_file
     from datagen.pipeline.objects.prepare import prepare_object
     from datagen.pipeline.scanning import scan_task
+    from datagen.pipeline.thread_limits import single_threaded_blas
     from datagen.pipeline.viewspace import build_view_space
 
     with user_errors(), single_threaded_blas():
@@ -333,7 +350,7 @@ def scan(
                     )
                     progress.advance(bar)
         print_table(table)
-        console.print(f"{table.row_count} tasks in {time.perf_counter() - started:.1f} s")
+        console.print(f"{plural(table.row_count, 'task')} in {time.perf_counter() - started:.1f} s")
         for problem in problems:
             console.print(Text("error: ", style="red") + Text(problem), highlight=False)
         if problems:

@@ -11,17 +11,18 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.text import Text
 
-from datagen.cli.common import Cell, console, error_console, print_rows, say, user_errors
-from datagen.engine.driver import JobProgress, ProgressCallback
-from datagen.pipeline.step_timing import step_lines, totals_from_json
-from datagen.settings import RunSettings, default_home
+from datagen.cli.common import Cell, IntervalProgress, console, error_console, plural, print_rows, say, user_errors
+from datagen.settings import RunSettings, default_home, ledger_for
 from jobs.ledger import DONE, FAILED, RUNNING, Job
+
+if TYPE_CHECKING:  # the engine (Ray, trimesh, the pipeline) is imported by the commands that run jobs only
+    from datagen.engine.driver import JobProgress, ProgressCallback
 
 HomeOption = Annotated[
     Path | None,
@@ -82,8 +83,6 @@ def _settings(
 
 @contextmanager
 def _progress_display(title: str) -> Iterator[ProgressCallback]:
-    from datagen.cli.progress import IntervalProgress
-
     with IntervalProgress(
         TextColumn("[bold]{task.description}"),
         BarColumn(),
@@ -135,6 +134,8 @@ def _report(job: Job) -> None:
                 soft_wrap=True,
             )
         if "step_seconds" in summary:
+            from datagen.pipeline.step_timing import step_lines, totals_from_json
+
             for line in step_lines(totals_from_json(summary["step_seconds"])):
                 say(line)
         for line in summary.get("warnings", []):
@@ -177,7 +178,7 @@ def submit(
         finally:
             ledger.close()
         console.print(
-            f"job {job.job_id}: {tasks} tasks -> {job.out}",
+            f"job {job.job_id}: {plural(tasks, 'task')} -> {job.out}",
             markup=False,
             highlight=False,
             soft_wrap=True,
@@ -221,12 +222,9 @@ def status(
     ] = False,
 ) -> None:
     """Jobs and their task counts (one job: every task, one line each outside a terminal)."""
-    from datagen import api
-
     with user_errors():
-        settings = _settings(home)
-        jobs = api.status(job_id, settings)
-        ledger = api.ledger_for(settings)
+        ledger = ledger_for(_settings(home))
+        jobs = [ledger.job(job_id)] if job_id else ledger.jobs()
         if as_json:
             try:
                 _print_status_json(ledger, jobs, job_id)
@@ -299,11 +297,6 @@ def failure_reason(job: Job) -> str:
     first = [*summary.get("line_errors", []), *summary.get("failures", [])][:1]
     reason = " and ".join(parts) or "see `datagen status JOB`"
     return f"{reason} (first: {first[0]})" if first else reason
-
-
-def plural(count: int, noun: str) -> str:
-    """``1 task``, ``2 tasks``."""
-    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def _print_status_json(ledger: Any, jobs: list[Any], job_id: str | None) -> None:

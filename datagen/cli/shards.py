@@ -15,7 +15,7 @@ from datagen.cli import shards_card, shards_check, shards_export, shards_pack, s
 
 shards_app = typer.Typer(help="Inspect, validate and export datasets.", no_args_is_help=True)
 
-shards_app.command("export")(shards_export.export)
+shards_app.command("export", cls=shards_export.ExportCommand)(shards_export.export)
 shards_app.command("validate")(shards_check.validate)
 shards_app.command("relabel")(shards_check.relabel)
 shards_app.command("repair")(shards_repair.repair)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from datagen.cli.common import UrlArgument, dataset_options, progress_bar, say, user_errors
+from datagen.cli.common import UrlArgument, dataset_options, plural, progress_bar, say, user_errors
 from storage.problems import Mend, Problem, lines
 
 if TYPE_CHECKING:
@@ -86,16 +86,16 @@ def validate(
         if found.tasks_checked < found.tasks_total:
             percent = 100 * found.tasks_checked / found.tasks_total
             share = f"; shards of {found.tasks_checked} of {found.tasks_total} tasks checked ({percent:.1f} %)"
-        warned = f", {_count(len(found.warnings), 'warning')} (harmless leftovers)" if found.warnings else ""
+        warned = f", {plural(len(found.warnings), 'warning')} (harmless leftovers)" if found.warnings else ""
         if problems:
             say(
-                f"{_count(len(problems), 'problem')} ({checked} labels checked with the solver, {scope}{share}){warned}"
+                f"{plural(len(problems), 'problem')} ({checked} labels checked with the solver, {scope}{share}){warned}"
             )
             say(fix_line(url, storage_problems, bool(label_lines)))
             raise typer.Exit(1)
-        sound = f"{_count(found.tasks_total, 'task')} sound"
+        sound = f"{plural(found.tasks_total, 'task')} sound"
         if share:  # a sample: say what was read, not more
-            sound = f"{found.tasks_checked} of {_count(found.tasks_total, 'task')} read and sound, every record sound"
+            sound = f"{found.tasks_checked} of {plural(found.tasks_total, 'task')} read and sound, every record sound"
         say(f"ok: {sound}, {checked} labels checked with the solver ({scope}{share}){warned}")
 
 
@@ -114,16 +114,12 @@ def fix_line(url: str, problems: list[Problem], labels: bool) -> str:
     if mends:
         tasks = len({problem.task for problem in problems if problem.mend == Mend.TASK})
         what = (
-            f"re-runs the {_count(tasks, 'damaged task')} from the ledger that made them" if tasks else "finalises it"
+            f"re-runs the {plural(tasks, 'damaged task')} from the ledger that made them" if tasks else "finalises it"
         )
         fixes.append(f"datagen shards repair {url} ({what}; where the job was submitted, or give --home)")
     if labels:  # labels the solver disagrees with, in sound shards: labelled again from the stored sets
         fixes.append(f"datagen shards relabel {url} --out NEW_URL (labels every case again from its stored sets)")
     return "fix: " + "; then ".join(fixes)
-
-
-def _count(number: int, noun: str) -> str:
-    return f"{number} {noun}{'s' if number != 1 else ''}"
 
 
 def _new_label_lines(storage_problems: list[Problem], labels: list[LabelProblem]) -> list[str]:
@@ -201,7 +197,8 @@ def relabel(
                 address=address,
             )
         say(
-            f"relabelled {summary.samples} samples of {summary.tasks} tasks for {summary.objective}, alpha "
+            f"relabelled {plural(summary.samples, 'sample')} of {plural(summary.tasks, 'task')} for "
+            f"{summary.objective}, alpha "
             f"{summary.alpha}, tie-break {summary.tie_break} (source: {summary.source_objective}, alpha "
             f"{summary.source_alpha}, tie-break {summary.source_tie_break})"
         )

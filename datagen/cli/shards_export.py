@@ -12,10 +12,17 @@ from typing import Annotated
 
 import typer
 
-from datagen.cli.common import dataset_options, progress_bar, say, user_errors
-from storage.export.registry import LAYOUTS
+from datagen.cli.common import dataset_options, lazy_help, progress_bar, say, user_errors
 
-LAYOUT_HELP = "Output layout: " + "; ".join(f"'{name}': {layout.summary}" for name, layout in LAYOUTS.items()) + "."
+
+def layout_help() -> str:
+    """``--layout``'s help, from the layout registry (imported only when help is shown)."""
+    from storage.export.registry import LAYOUTS
+
+    return "Output layout: " + "; ".join(f"'{name}': {layout.summary}" for name, layout in LAYOUTS.items()) + "."
+
+
+ExportCommand = lazy_help(layout=layout_help)
 
 
 def export(
@@ -27,7 +34,7 @@ def export(
             help="A new or empty output folder (for air its path must not contain 'cloud', for mascvp 'grid').",
         ),
     ],
-    layout: Annotated[str, typer.Option("--layout", help=LAYOUT_HELP)],
+    layout: Annotated[str, typer.Option("--layout", help="Output layout: see --help.")],
     points: Annotated[
         int | None,
         typer.Option("--points", help="Points per cloud (sampled, seeded; at least 2): air needs it, pcnbv 512."),

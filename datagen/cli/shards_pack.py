@@ -10,8 +10,8 @@ from typing import Annotated
 
 import typer
 
-from datagen.cli.common import dataset_options, progress_bar, say, user_errors
-from storage.pack import DEFAULT_PACK_BYTES
+from datagen.cli.common import dataset_options, plural, progress_bar, say, user_errors
+from schemas.dataset import PACK_BYTES
 
 MIB = 1024**2
 
@@ -22,7 +22,7 @@ def pack(
     pack_mb: Annotated[
         int,
         typer.Option("--pack-mb", help="About this many MiB a pack (tar) file; WebDataset uses ~1 GB, MDS 64 MB."),
-    ] = DEFAULT_PACK_BYTES // MIB,
+    ] = PACK_BYTES // MIB,
 ) -> None:
     """Write the dataset's tasks into tar files of about --pack-mb each (in task id order, each task its
     shard <task>.zarr.zip and index rows <task>.index.parquet: WebDataset shards) and one manifest; the
@@ -42,6 +42,7 @@ def pack(
                 progress=lambda p: bar.update(task, completed=p.tasks_done, total=p.tasks_total),
             )
     say(
-        f"packed {summary.tasks} tasks ({summary.samples} samples, {summary.bytes_written / MIB:.0f} MiB) into "
-        f"{summary.packs} packs in {summary.seconds:.1f} s: {summary.out}"
+        f"packed {plural(summary.tasks, 'task')} ({plural(summary.samples, 'sample')}, "
+        f"{summary.bytes_written / MIB:.0f} MiB) into {plural(summary.packs, 'pack')} in {summary.seconds:.1f} s: "
+        f"{summary.out}"
     )

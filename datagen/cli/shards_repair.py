@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from datagen.cli.common import UrlArgument, progress_bar, say, user_errors
+from datagen.cli.common import UrlArgument, plural, progress_bar, say, user_errors
 
 
 def repair(
@@ -44,5 +44,8 @@ def repair(
             say(f"re-ran {task_id}: {line}")
         for problem in summary.index_problems:
             say(f"index finalised again: {problem.line}")
-        say(f"repaired: {len(summary.repaired)} tasks re-run (jobs {', '.join(summary.jobs) or '-'}), index finalised")
+        say(
+            f"repaired: {plural(len(summary.repaired), 'task')} re-run (jobs {', '.join(summary.jobs) or '-'}), "
+            "index finalised"
+        )
         say(f"ok: {url} is sound ({summary.samples} samples)")

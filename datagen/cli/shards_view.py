@@ -13,20 +13,18 @@ import sys
 import textwrap
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
-import numpy as np
 import typer
 from rich import box
 from rich.table import Table
 
-from datagen.cli.common import Cell, UrlArgument, dataset_options, print_rows, print_table, say, user_errors
+from datagen.cli.common import Cell, UrlArgument, dataset_options, plural, print_rows, print_table, say, user_errors
 from datagen.errors import OutputError
-from datagen.inspection.listing import FAILED, SampleDetails, TaskRow, describe_sample, find_sample, list_tasks
-from datagen.inspection.stats import DatasetStats, dataset_stats
-from datagen.pipeline.step_timing import step_lines
-from schemas.objectives import objective_named
-from storage.bits import mask_bits
+
+if TYPE_CHECKING:  # the dataset's reader and inspection tools load when a command runs, not at every start
+    from datagen.inspection.listing import SampleDetails, TaskRow
+    from datagen.inspection.stats import DatasetStats
 
 PngOption = Annotated[Path | None, typer.Option("--png", metavar="FILE", help="Also draw it to this PNG file.")]
 
@@ -50,10 +48,6 @@ def format_seconds(seconds: float | None) -> str:
     return f"{seconds * 1e3:.3g} ms" if seconds >= 1e-3 else f"{seconds * 1e6:.3g} µs"
 
 
-def plural(count: int, noun: str) -> str:
-    return f"{count} {noun}" if count == 1 else f"{count} {noun}s"
-
-
 def format_views(views: Sequence[int]) -> str:
     return " ".join(str(v) for v in views) if views else "none"
 
@@ -61,6 +55,8 @@ def format_views(views: Sequence[int]) -> str:
 def view_strip(details: SampleDetails) -> str:
     """One character per view, in bit order: I input, L label, B both, a view of another minimum cover
     (version 2), . other."""
+    from storage.bits import mask_bits
+
     support = mask_bits(details.ambiguity.support if details.ambiguity else 0, details.num_views).tolist()
     marks = []
     for view in range(details.num_views):
@@ -72,6 +68,10 @@ def view_strip(details: SampleDetails) -> str:
 
 def ambiguity_rows(details: SampleDetails) -> list[tuple[str, str]]:
     """``shards show`` lines on the label's minimum covers (none for a version-1 dataset)."""
+    import numpy as np
+
+    from storage.bits import mask_bits
+
     found = details.ambiguity
     if found is None:
         return [("minimum covers", "not recorded (schema 1; `datagen shards relabel` adds them)")]
@@ -140,6 +140,8 @@ TASK_COLUMNS = ["task", "object", "rot", "samples", "points", "size", "state"]
 
 def task_cells(row: TaskRow) -> list[Cell]:
     """One task's row of ``shards ls``."""
+    from datagen.inspection.listing import FAILED
+
     stored = row.state != FAILED
     return [
         row.task_id,
@@ -158,6 +160,7 @@ def ls(
 ) -> None:
     """One row per task: object, rotation, samples, points in its refined clouds, bytes on disk, and
     whether it committed; each failed task's message follows the table."""
+    from datagen.inspection.listing import FAILED, list_tasks
     from storage import open_dataset
 
     with user_errors(url):
@@ -177,6 +180,8 @@ def ls(
 
 def _print_tasks_json(rows: list[TaskRow]) -> None:
     """`ls --json`: ``{"tasks": [...], "committed", "failed", "samples", "bytes"}``, a task a line."""
+    from datagen.inspection.listing import FAILED
+
     out = sys.stdout
     out.write('{"tasks": [')
     for number, row in enumerate(rows):
@@ -229,6 +234,7 @@ def show(
 ) -> None:
     """One sample: its metadata, input and label views, point counts and solver record; --png draws
     its clouds and views."""
+    from datagen.inspection.listing import describe_sample, find_sample
     from storage import open_dataset
 
     with user_errors(url):
@@ -258,6 +264,8 @@ def _histogram_text(histogram: dict[int, int]) -> str:
 
 
 def print_stats(stats: DatasetStats) -> None:
+    from datagen.pipeline.step_timing import step_lines
+
     say(
         f"{stats.samples} samples in {stats.committed_tasks} committed tasks, {len(stats.failed)} failed; "
         f"{stats.empty_labels} empty labels"
@@ -300,6 +308,8 @@ def print_stats(stats: DatasetStats) -> None:
 
 def print_ambiguity(stats: DatasetStats) -> None:
     """How many minimum covers (another objective: ties) the (non-empty) labels were chosen from."""
+    from schemas.objectives import objective_named
+
     found = stats.ambiguity
     if found is None:
         say("minimum covers: not recorded (schema 1; `datagen shards relabel URL --out URL2` adds them)")
@@ -350,6 +360,7 @@ def stats(
     """Samples per object and rotation, cases and label sizes per case size, empty labels, points and
     solver time percentiles, time per task step, failed tasks; --json for machines, --png for the
     histograms."""
+    from datagen.inspection.stats import dataset_stats
     from storage import open_dataset
 
     with user_errors(url):

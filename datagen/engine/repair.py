@@ -22,8 +22,7 @@ import os
 from dataclasses import dataclass, field
 
 from datagen.engine.driver import ProgressCallback, run_job
-from datagen.engine.serve import ledger_for
-from datagen.settings import RunSettings
+from datagen.settings import RunSettings, ledger_for
 from jobs.ledger import DONE, Job, Ledger
 from schemas.jobs import JobSpec
 from storage import (

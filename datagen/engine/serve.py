@@ -27,23 +27,14 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 from datagen.engine.driver import run_job, waiting_line
-from datagen.settings import RunSettings
-from jobs.ledger import FINAL_STATES, Holders, Ledger, LedgerError
+from datagen.settings import RunSettings, ledger_for
+from jobs.ledger import FINAL_STATES, Holders, LedgerError
 from schemas.errors import DatagenError
-
-LEDGER_FILE = "ledger.db"
-"""The ledger's file name inside the home folder (``RunSettings.home``)."""
 
 Report = Callable[[str], None]
 """Receives one line of text (no newline)."""
-
-
-def ledger_for(settings: RunSettings) -> Ledger:
-    """The job ledger of a home folder (``HOME/ledger.db``), created when missing."""
-    return Ledger(Path(settings.home) / LEDGER_FILE)
 
 
 def print_error(line: str) -> None:

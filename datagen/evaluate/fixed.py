@@ -104,7 +104,8 @@ class FixedPlans:
         lines = [f"fixed plans from {self.source}: {self.tasks} tasks, {self.cases} single-view cases; {how}"]
         for size in sorted(self.by_size)[:6]:
             plan = self.by_size[size]
-            lines.append(f"  {size} views: {list(plan.views)} ({100 * plan.mean_coverage:.1f} % on the training cases)")
+            views = f"{size} view{'' if size == 1 else 's'}"
+            lines.append(f"  {views}: {list(plan.views)} ({100 * plan.mean_coverage:.1f} % on the training cases)")
         return lines
 
     def as_dict(self) -> dict[str, Any]:

@@ -11,8 +11,8 @@ from rich.console import Console
 from support import storage as fx
 from typer.testing import CliRunner
 
+from datagen.cli.common import IntervalProgress, duration, progress_line
 from datagen.cli.main import app
-from datagen.cli.progress import IntervalProgress, duration, progress_line
 
 
 def test_off_a_terminal_one_line_per_interval() -> None:
@@ -55,3 +55,10 @@ def test_progress_words() -> None:
     with IntervalProgress(console=console, interval=1e9) as progress:
         task = progress.add_task("packs", total=None)
         assert progress_line(progress.tasks[task]) == "packs: 0"
+
+
+def test_counts_read_as_people_write_them() -> None:
+    """Issue 52, finding 14: "1 packs", "1 tasks", "1 views" no more."""
+    from datagen.cli.common import plural
+
+    assert [plural(n, "pack") for n in (0, 1, 2)] == ["0 packs", "1 pack", "2 packs"]

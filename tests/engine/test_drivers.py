@@ -21,8 +21,8 @@ from datagen.cli import common
 from datagen.cli import jobs as jobs_cli
 from datagen.cli.main import app
 from datagen.engine import serve as serve_module
-from datagen.engine.serve import ledger_for, serve
-from datagen.settings import RunSettings
+from datagen.engine.serve import serve
+from datagen.settings import RunSettings, ledger_for
 from jobs.ledger import DONE, RUNNING, Job, Ledger
 from jobs.liveness import process_identity
 

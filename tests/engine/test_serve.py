@@ -10,8 +10,8 @@ import pytest
 
 from datagen import api
 from datagen.engine import serve as serve_module
-from datagen.engine.serve import LEDGER_FILE, ledger_for, serve
-from datagen.settings import RunSettings
+from datagen.engine.serve import serve
+from datagen.settings import LEDGER_FILE, RunSettings, ledger_for
 from jobs.ledger import FAILED, PENDING, LedgerError
 
 
@@ -40,17 +40,32 @@ def test_an_empty_queue_reports_the_ledger_and_returns(tmp_path: Path) -> None:
 
 
 def test_a_job_that_cannot_start_is_failed_and_the_loop_goes_on(tmp_path: Path) -> None:
-    job_id = enqueue(tmp_path, "nosuchscheme://bucket/data")
+    from datagen.engine.driver import dataset_info
+    from schemas.config import GenerationConfig
+    from storage import init_dataset, open_location
+
+    out = str(tmp_path / "out")
+    job_id = enqueue(tmp_path, out)
+    # Another job's dataset takes the folder after this one was queued (enqueue itself refuses one).
+    init_dataset(open_location(out), dataset_info(GenerationConfig(rotations=3, refiner="none")))
     settings = RunSettings(home=tmp_path / "home")
     lines = serve_once(settings)
     assert lines.out == [f"serving {settings.home / LEDGER_FILE}", f"running job {job_id}", f"job {job_id}: failed"]
     (error,) = lines.err
-    assert error.startswith(f"error: job {job_id}: nosuchscheme://bucket/data: unsupported dataset URL")
+    assert error.startswith(f"error: job {job_id}: {out}: holds a dataset of another config")
     ledger = ledger_for(settings)
     try:
         assert ledger.job(job_id).state == FAILED
     finally:
         ledger.close()
+
+
+def test_an_unusable_url_is_refused_before_the_job_is_queued(tmp_path: Path) -> None:
+    from schemas.errors import DatagenError
+
+    with pytest.raises(DatagenError, match="nosuchscheme://bucket/data: unsupported dataset URL"):
+        enqueue(tmp_path, "nosuchscheme://bucket/data")
+    assert api.status(None, RunSettings(home=tmp_path / "home")) == []
 
 
 def test_a_ledger_error_stops_the_loop_and_fails_no_job(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

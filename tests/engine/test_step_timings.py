@@ -19,11 +19,10 @@ from datagen.cli.main import app
 from datagen.engine import driver as driver_module
 from datagen.engine.driver import dataset_info
 from datagen.engine.job_plan import JobPlan
-from datagen.engine.serve import ledger_for
 from datagen.engine.worker import execute_task
 from datagen.inspection.stats import dataset_stats
 from datagen.pipeline.step_timing import NOT_RECORDED, StepClock, StepTotals, step_lines, step_totals, totals_from_json
-from datagen.settings import RunSettings
+from datagen.settings import RunSettings, ledger_for
 from jobs.ledger import Job
 from schemas.index import INDEX_SCHEMA, TASK_STEPS, CommitRecord
 from schemas.jobs import JobSpec
