@@ -191,12 +191,21 @@ def progress_seconds() -> float:
 
 
 class IntervalProgress(Progress):
-    """A rich `Progress` that, when its live display is off (not a terminal), logs a line per interval."""
+    """A rich `Progress` that, when its live display is off (not a terminal), logs a line per interval
+    to ``log`` (standard error by default: standard output keeps only results, such as ``--json``'s)."""
 
-    def __init__(self, *columns: Any, console: Console, interval: float | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self,
+        *columns: Any,
+        console: Console,
+        interval: float | None = None,
+        log: Console | None = None,
+        **kwargs: Any,
+    ) -> None:
         self.logs = not console.is_terminal
         super().__init__(*columns, console=console, disable=self.logs, **kwargs)
         self.interval = progress_seconds() if interval is None else interval
+        self.log_console = error_console if log is None else log
         self._last = self.get_time()
 
     def update(self, task_id: TaskID, **kwargs: Any) -> None:
@@ -212,7 +221,7 @@ class IntervalProgress(Progress):
             return
         self._last = self.get_time()
         for task in self.tasks:
-            self.console.print(progress_line(task), markup=False, highlight=False, soft_wrap=True)
+            self.log_console.print(progress_line(task), markup=False, highlight=False, soft_wrap=True)
 
 
 def progress_line(task: Task) -> str:

@@ -19,7 +19,7 @@ def test_off_a_terminal_one_line_per_interval() -> None:
     clock = [100.0]
     out = io.StringIO()
     console = Console(file=out, force_terminal=False, width=80)
-    with IntervalProgress(console=console, interval=30.0, get_time=lambda: clock[0]) as progress:
+    with IntervalProgress(console=console, interval=30.0, get_time=lambda: clock[0], log=console) as progress:
         task = progress.add_task("tasks", total=1368, samples=0, failed=0)
         for step in range(1, 121):  # two minutes of updates, one a second
             clock[0] += 1.0
@@ -46,7 +46,8 @@ def test_validate_in_a_log_says_how_far_it_is(tmp_path, monkeypatch: pytest.Monk
     monkeypatch.setenv("DATAGEN_PROGRESS_SECONDS", "1e-9")
     result = CliRunner().invoke(app, ["shards", "validate", url])
     assert result.exit_code == 0, result.output
-    assert "shards: structure, coverage, labels: 2/2 (100 %)" in result.output
+    assert "shards: structure, coverage, labels: 2/2 (100 %)" in result.stderr  # stdout keeps the results
+    assert "shards: structure" not in result.stdout
 
 
 def test_progress_words() -> None:
@@ -62,3 +63,14 @@ def test_counts_read_as_people_write_them() -> None:
     from datagen.cli.common import plural
 
     assert [plural(n, "pack") for n in (0, 1, 2)] == ["0 packs", "1 pack", "2 packs"]
+
+
+def test_progress_lines_never_mix_with_json_results(tmp_path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import json
+
+    objects = tmp_path / "objects.txt"
+    objects.write_text("builtin:capsule\nbuiltin:cone\n")
+    monkeypatch.setenv("DATAGEN_PROGRESS_SECONDS", "1e-9")
+    result = CliRunner().invoke(app, ["evaluate", "--objects", str(objects), "-p", "gain:3", "--json", "-w", "1"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.stdout)["rows"] and "evaluating objects" in result.stderr
