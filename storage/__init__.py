@@ -18,7 +18,7 @@ if TYPE_CHECKING:
     from storage.reader import Dataset, LabelAmbiguity, NextView, finalise, open_dataset
     from storage.shards import ShardReader
     from storage.store_errors import check_store, is_store_failure, is_transient, storage_failure, store_errors
-    from storage.validate import SAMPLED_ROWS_PER_SHARD, Validation, validate, validate_dataset
+    from storage.validation import SAMPLED_ROWS_PER_SHARD, Validation, validate, validate_dataset
     from storage.writer import (
         ShardPayload,
         committed_tasks,
@@ -108,10 +108,10 @@ _HOMES = {
     "is_transient": "storage.store_errors",
     "storage_failure": "storage.store_errors",
     "store_errors": "storage.store_errors",
-    "SAMPLED_ROWS_PER_SHARD": "storage.validate",
-    "Validation": "storage.validate",
-    "validate": "storage.validate",
-    "validate_dataset": "storage.validate",
+    "SAMPLED_ROWS_PER_SHARD": "storage.validation",
+    "Validation": "storage.validation",
+    "validate": "storage.validation",
+    "validate_dataset": "storage.validation",
     "ShardPayload": "storage.writer",
     "committed_tasks": "storage.writer",
     "holds_dataset": "storage.writer",

@@ -52,7 +52,7 @@ def validate(
     """
     from datagen.engine.parallel import run_each
     from datagen.inspection.validation import check_chunk, task_chunks
-    from storage.validate import check_dataset, plan_validation
+    from storage.validation import check_dataset, plan_validation
 
     with user_errors(url):
         options = dataset_options(url)

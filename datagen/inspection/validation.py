@@ -13,7 +13,7 @@ from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from storage.location import open_location
 from storage.problems import Problem
-from storage.validate import ValidationPlan, check_tasks
+from storage.validation import ValidationPlan, check_tasks
 
 TASK_CHUNK = 256
 """Tasks a worker checks at a time (its index rows and findings travel as one result)."""

@@ -123,8 +123,9 @@ def test_a_grid_network_trains_and_evaluates_from_the_command_line(
     assert "epoch 1/1" in err and " best view " in err and "gain error" not in err
     assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt"), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert report["target"] == "best_view" and set(report["next_view"]) == {"best_view_accuracy"}
+    assert report["target"] == "best_view" and set(report["next_view"]) == {"best_view_accuracy", "chosen_gain_ratio"}
     assert 0.0 <= report["next_view"]["best_view_accuracy"] <= 1.0
+    assert 0.0 <= report["next_view"]["chosen_gain_ratio"] <= 1.0
     assert main(["eval", "--data", dataset_url, "--checkpoint", str(out / "best.pt")]) == 0
     assert capsys.readouterr().out.startswith("next-best-view planner (best_view), ")
 

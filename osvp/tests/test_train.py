@@ -58,7 +58,9 @@ def test_resume_gives_the_weights_of_an_uninterrupted_run(
     b = load_checkpoint(tmp_path / "resumed" / "last.pt")
     assert a.epoch == b.epoch == 2 and a.target == b.target == target
     assert a.tuned_threshold == b.tuned_threshold == straight.history[-1]["tuned_threshold"]
-    expected_metric = "best_view_accuracy" if target in NEXT_VIEW_TARGETS else "size_cover_f1"
+    expected_metric = {"near_best": "chosen_gain_ratio"}.get(
+        target, "best_view_accuracy" if target in NEXT_VIEW_TARGETS else "size_cover_f1"
+    )
     assert straight.best_metric == expected_metric and all(row["train_loss"] > 0 for row in straight.history)
     for key, value in a.data["model"].items():
         assert torch.equal(value, b.data["model"][key]), key
@@ -258,3 +260,20 @@ def test_val_data_validates_on_another_dataset_and_trains_on_all_of_data(
     split = train(options(dataset_url, tmp_path / "split"), bank=bank)
     assert load_checkpoint(tmp_path / "split" / "last.pt").training["val_samples"] < len(bank)
     assert outcome.history[0]["val_loss"] != split.history[0]["val_loss"]
+
+
+def test_case_balance_draws_every_case_size_alike_at_power_one() -> None:
+    """--case-balance 1 gives the rare large cases as many draws as the common single-view ones; 0 is a
+    permutation (every sample once); the same seed draws the same epoch."""
+    from osvp.train import epoch_order
+
+    sizes = np.repeat(np.array([1, 2, 3], dtype=np.int64), [900, 90, 10])
+    rows = np.arange(1000, dtype=np.int64) + 5000
+    plain = epoch_order(rows, sizes, np.random.default_rng(0), 0.0)
+    assert sorted(plain.tolist()) == rows.tolist()
+    balanced = epoch_order(rows, sizes, np.random.default_rng(0), 1.0)
+    drawn = np.bincount(sizes[balanced - 5000], minlength=4)[1:]
+    assert len(balanced) == 1000 and all(260 <= n <= 400 for n in drawn), drawn
+    half = np.bincount(sizes[epoch_order(rows, sizes, np.random.default_rng(0), 0.5) - 5000], minlength=4)[1:]
+    assert half[0] > half[1] > half[2] > 10, half  # between: rarer sizes gain, the order stays
+    assert np.array_equal(balanced, epoch_order(rows, sizes, np.random.default_rng(0), 1.0))

@@ -234,7 +234,7 @@ def test_scan_one_builtin_rotation(runner: CliRunner, tmp_path: Path) -> None:
     assert p_gt > 1000
     assert 0 < per_view <= union <= p_gt
     assert rays > 0
-    assert "1 tasks in" in out
+    assert "1 task in" in out
     assert error_lines(out) == []
 
 
@@ -246,7 +246,7 @@ def test_scan_with_a_config_and_bad_lines(runner: CliRunner, tmp_path: Path) -> 
     result = runner.invoke(app, ["scan", "--objects", str(path), "--config", str(config), "--rotations", "3"])
     assert result.exit_code == 1, result.output
     assert "12 views" in result.stdout
-    assert "1 tasks in" in result.stdout
+    assert "1 task in" in result.stdout
     (line,) = error_lines(result.stdout)
     assert f"{path}:2: unknown built-in 'nope'" in line
 

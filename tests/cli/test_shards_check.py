@@ -48,7 +48,7 @@ from storage.covers import mask_views
 from storage.label_judges import visibility_judge
 from storage.manifest import mark_adding
 from storage.shards import KEY_CHUNK_ROWS, ShardReader
-from storage.validate import SAMPLED_ROWS_PER_SHARD
+from storage.validation import SAMPLED_ROWS_PER_SHARD
 from storage.writer import commit_path, fragment_path, shard_path
 
 runner = CliRunner()

@@ -63,7 +63,7 @@ def test_fixed_plans_equal_a_brute_force_search(training: str) -> None:
                 assert played.views == brute_force_plans(size, without=initial)[0]
             else:
                 assert played == plans.by_size[size]
-    assert any(line.startswith("  1 views:") for line in plans.summary())
+    assert any(line.startswith("  1 view:") for line in plans.summary())
     assert "exact for sizes 1-3" in plans.summary()[0]
 
 

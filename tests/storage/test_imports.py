@@ -42,7 +42,7 @@ READ_WITHOUT_PIPELINE = BLOCKER + textwrap.dedent(
     import json
 
     import schemas, storage
-    import storage.reader, storage.validate, storage.export
+    import storage.reader, storage.validation, storage.export
     from storage import open_dataset, validate
 
     for name in sys.argv[2].split(","):  # the blocker really blocks
@@ -77,7 +77,7 @@ TORCH_ONLY_WITH_STORAGE_TORCH = textwrap.dedent(
     import sys
 
     import schemas, storage
-    import storage.reader, storage.validate, storage.export
+    import storage.reader, storage.validation, storage.export
     after_storage = "torch" in sys.modules
     import storage.torch
     print(json.dumps({"after_storage": after_storage, "after_storage_torch": "torch" in sys.modules}))

@@ -22,7 +22,7 @@ from schemas.version import SCHEMA_VERSION
 from storage import ShardReader, StorageError, committed_tasks, open_dataset, open_location
 from storage.group_files import zip_entries
 from storage.pack import pack_dataset
-from storage.validate import validate
+from storage.validation import validate
 
 PACK_BYTES = 200_000
 """Small packs: each holds about one of the tests' tasks, so the dataset has several."""

@@ -32,7 +32,7 @@ from storage import StorageError
 from storage.location import open_location
 from storage.manifest import ADDING_FILE, mark_adding
 from storage.reader import Dataset, finalise, open_dataset
-from storage.validate import validate
+from storage.validation import validate
 from storage.writer import commit_path, failure_path, fragment_path, read_failures, shard_path, write_failure
 
 FIRST, SECOND = sorted(fx.task_ids())
@@ -413,7 +413,7 @@ def test_a_manifest_naming_another_attempt_is_a_validate_problem(ds: Path) -> No
 
 
 def test_stale_failure_beside_a_commit_is_a_warning(ds: Path) -> None:
-    from storage.validate import validate_dataset
+    from storage.validation import validate_dataset
 
     record = FailureRecord(
         schema_version=SCHEMA_VERSION, task_id=FIRST, object_name="capsule", origin="o.txt:1", message="boom"
@@ -520,7 +520,7 @@ write's temporary of the whole shard file (one-file layout)."""
 def test_temporary_leftovers_are_warnings_and_never_read(
     ds: Path, clean: Path, fds: Path, clean_folders: Path, layout: str
 ) -> None:
-    from storage.validate import validate_dataset
+    from storage.validation import validate_dataset
 
     if layout == "folders":
         ds, clean = fds, clean_folders

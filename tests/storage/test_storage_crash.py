@@ -31,7 +31,7 @@ from storage.dataset_info import init_dataset
 from storage.location import Location, open_location
 from storage.reader import open_dataset
 from storage.shards import ShardReader
-from storage.validate import validate
+from storage.validation import validate
 from storage.writer import (
     ShardPayload,
     commit_path,

@@ -24,7 +24,7 @@ from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
 from storage.location import open_location
 from storage.reader import finalise, open_dataset
 from storage.shards import KEY_CHUNK_ROWS
-from storage.validate import validate
+from storage.validation import validate
 from storage.writer import commit_path, committed_tasks, fragment_path, shard_path
 
 LAYOUT = 4
@@ -135,7 +135,7 @@ def test_chunk_file_truncated_on_disk(ds: Path, array: str) -> None:
 
 
 ZARR_FILLS_MISSING_CHUNKS = (
-    "storage/validate.py _check_shard/_check_key_sets: zarr reads a missing or zero-length chunk file as the "
+    "storage/validation.py _check_shard/_check_key_sets: zarr reads a missing or zero-length chunk file as the "
     "fill value (all-zero keys), so validate reports nothing and the reader returns zero points; validate should "
     "compare nchunks_initialized with nchunks and check that every key set is sorted and unique"
 )
@@ -347,7 +347,7 @@ def test_problems_are_records_and_repair_sorts_them_whatever_their_wording(ds: P
     from storage import Mend, Problem
     from storage.manifest import MANIFEST_FILE
     from storage.repair import sort_problems
-    from storage.validate import validate_dataset
+    from storage.validation import validate_dataset
 
     finalise(open_location(str(ds)))
     first, second = sorted(fx.task_ids())

@@ -51,7 +51,7 @@ from support.s3_servers import BUCKET, REGION, S3Server, unused_port
 
 from datagen import api
 from datagen.settings import RunSettings
-from jobs.ledger import DONE, FAILED, PENDING, RUNNING, Job, Task
+from jobs.ledger import DONE, PENDING, RUNNING, Job, Task
 from schemas.index import CommitRecord
 from storage import committed_tasks, open_dataset, open_location, validate
 from storage.writer import sweep_orphans
@@ -388,13 +388,12 @@ def check_failed_run(run: FailedRun, cause: tuple[str, ...]) -> None:
     assert "AWS_ENDPOINT_URL" in line and "AWS_SECRET_ACCESS_KEY" in line, line  # what to check
     assert any(word in line for word in cause), line
     assert "Traceback" not in run.output
-    job = only_job(run.home)
-    assert job is not None and job.state == FAILED
-    assert job.summary is not None and run.url in job.summary["error"]
+    # the store is checked before anything is enqueued: a refused job is never recorded, so no failed
+    # job stands in `status` against the dataset it could not reach (issue 52, finding 1)
+    assert only_job(run.home) is None
     status = run_datagen(["status", "--home", str(run.home)])
     assert status.returncode == 0, status.stdout + status.stderr
-    (row,) = [line for line in status.stdout.splitlines() if job.job_id in line]
-    assert "failed" in row.split(), row
+    assert run.url not in status.stdout, status.stdout
 
 
 def test_wrong_credentials_fail_the_job_with_one_error_line(wrong_secret: FailedRun) -> None:
@@ -426,9 +425,10 @@ def test_no_secret_in_ledger_dataset_or_output(
     ledgers = sorted(
         path
         for home in (reference.home, killed_and_resumed.home, wrong_secret.home, unreachable.home, silent.home)
-        for path in home.glob("ledger.db*")
+        for path in home.rglob("*")
+        if path.is_file()
     )
-    assert len(ledgers) >= 5
+    assert sum(path.name == "ledger.db" for path in ledgers) >= 2  # the refused runs record no job
     outputs = [*killed_and_resumed.outputs, wrong_secret.output, unreachable.output, silent.output]
     documents: dict[str, bytes] = {str(path): path.read_bytes() for path in ledgers}
     documents.update({f"output {number}": text.encode() for number, text in enumerate(outputs)})

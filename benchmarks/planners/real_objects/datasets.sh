@@ -2,6 +2,8 @@
 # The datasets of issue 49, made with the service itself into WORK (default ../real-work beside the checkout):
 #   real-{train,val}-none  the split's training and validation objects, 8 rotations, refiner none, default voxel
 #   synth1000-none         1,000 synthetic objects (seed 23, the learning curve's), 2 rotations, refiner none
+#   real-{train,val}-none-tau90  their relabels for the one-shot planner: partial cover at tau 0.9
+#   real-train-{poco,none}-r2    the training objects at 2 rotations, POCO and none: the refinement comparison
 #   real-{train,val}-poco  the same real objects at the paper's settings (default config: POCO, 8 rotations)
 # Each line is one `datagen submit`; running the script again resumes what is not done (committed tasks
 # are kept, never recomputed). The none datasets come first: they train the next-view planners in minutes,
@@ -17,6 +19,13 @@ submit --objects "$here/train.txt" --config "$work/none.toml" --out "$work/real-
 submit --objects "$here/val.txt" --config "$work/none.toml" --out "$work/real-val-none"
 [ -f "$work/synth/objects.txt" ] || datagen objects synth --count 1000 --seed 23 --out "$work/synth"
 submit --objects "$work/synth/objects.txt" --config "$work/synth.toml" --out "$work/synth1000-none"
+relabel() { [ -f "$work/$2/dataset.json" ] || datagen shards relabel "$work/$1" --out "$work/$2" "${@:3}"; }
+relabel real-train-none real-train-none-tau90 --objective partial_cover --tau 0.9 --workers 2
+relabel real-val-none real-val-none-tau90 --objective partial_cover --tau 0.9 --workers 2
+printf 'rotations = 2\n' > "$work/poco-r2.toml"
+printf 'refiner = "none"\nrotations = 2\n' > "$work/none-r2.toml"
+submit --objects "$here/train.txt" --config "$work/poco-r2.toml" --out "$work/real-train-poco-r2"
+submit --objects "$here/train.txt" --config "$work/none-r2.toml" --out "$work/real-train-none-r2"
 submit --objects "$here/val.txt" --out "$work/real-val-poco"
 submit --objects "$here/train.txt" --out "$work/real-train-poco"
 echo "== $(date -u +%FT%TZ) done"

@@ -108,6 +108,15 @@ def _parser() -> argparse.ArgumentParser:
             "on all of --data; best.pt is then chosen on objects the run never trained on",
         )
         sub.add_argument(
+            "--case-balance",
+            type=float,
+            default=0.0,
+            metavar="P",
+            help="draw training samples with probability count(case size)^-P (0: each once, the default; 1: every "
+            "case size alike): the long-tail cases hold few large ones, the situations a next-best-view planner "
+            "meets after its first views",
+        )
+        sub.add_argument(
             "--init",
             type=Path,
             default=None,
@@ -263,6 +272,7 @@ def _options(args: argparse.Namespace, out: Path, lambda_: float, resume: bool) 
         fit_rows=args.fit_rows,
         val_data=args.val_data,
         init=args.init,
+        case_balance=args.case_balance,
     )
 
 

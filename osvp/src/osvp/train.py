@@ -135,6 +135,11 @@ class TrainOptions:
     init: Path | None = None
     """Start from this checkpoint's weights (the same network, preset and view count): fine-tuning
     a pre-trained planner. The optimiser starts afresh."""
+    case_balance: float = 0.0
+    """Draw each epoch's training samples with probability proportional to count(case size)^-p
+    (with replacement; as many as there are): 0 takes every sample once (the default), 1 weighs every
+    case size alike. The long-tail cases hold few large cases, so a next-best-view planner sees few of
+    the situations it meets after its first views."""
 
     def for_samples(self, train_samples: int) -> TrainOptions:
         """The options for a training set of ``train_samples``: with `steps`, as many epochs as give
@@ -187,6 +192,10 @@ class TrainOptions:
             raise DataError(f"fit rows {self.fit_rows} must be >= 0 (0: none)")
         if self.val_cap < 0:
             raise DataError(f"validation cap {self.val_cap} must be >= 0 (0: every validation sample)")
+        if not 0.0 <= self.case_balance <= 1.0:
+            raise DataError(f"--case-balance {self.case_balance}: give a power from 0 (every sample once) to 1")
+        if self.case_balance and self.stream:
+            raise DataError("--case-balance draws samples from memory; train without --stream")
         if self.init is not None and self.resume:
             raise DataError("--init starts a new run from a checkpoint's weights; --resume continues one: give one")
         if self.device.startswith("cuda") and not torch.cuda.is_available():
@@ -203,8 +212,8 @@ class TrainOptions:
             data.pop("network")
         for free in ("out", "resume", "epochs", "device", "memory_limit_gb", "fit_rows"):
             data.pop(free)
-        for added in ("val_data", "init"):  # what runs before these options existed recorded
-            if data[added] is None:
+        for added, unset in (("val_data", None), ("init", None), ("case_balance", 0.0)):
+            if data[added] == unset:  # what runs before these options existed recorded
                 data.pop(added)
         if self.init is not None:  # the weights it started from, by content: a moved file resumes alike
             data["init"] = file_sha256(self.init)
@@ -308,6 +317,8 @@ def train(
     if streaming is None:
         streaming = choose_streaming(options.data, None, options.memory_limit_gb, options.source, fields)[0]
     options = replace(options, stream=streaming)
+    if streaming and options.case_balance:
+        raise DataError("--case-balance draws samples from memory, but this dataset is streamed; raise --memory-limit")
     if streaming:
         dataset = open_dataset(options.data, needs)
         bank = index_bank(dataset, options.source)
@@ -530,9 +541,25 @@ def forward(network: nn.Module, family: Architecture, batch: Batch, device: str)
     return logits
 
 
+def epoch_order(
+    rows: npt.NDArray[np.int64], case_sizes: npt.NDArray[np.int64], rng: np.random.Generator, case_balance: float
+) -> npt.NDArray[np.int64]:
+    """An epoch's rows: a permutation, or with ``case_balance`` p > 0 as many rows drawn with
+    replacement, each with probability proportional to count(its case size)^-p (1: every size alike)."""
+    if not case_balance:
+        return rng.permutation(rows)
+    counts = np.bincount(case_sizes)
+    weights = counts[case_sizes].astype(np.float64) ** -case_balance
+    return rng.choice(rows, size=len(rows), replace=True, p=weights / weights.sum())
+
+
 def _bank_batches(bank: SampleBank, rows: npt.NDArray[np.int64], options: TrainOptions, epoch: int) -> Iterator[Batch]:
-    """An epoch's batches from memory: the rows in a permutation drawn from (seed, epoch, 1)."""
-    order = np.random.default_rng(np.random.SeedSequence([options.seed, epoch, 1])).permutation(rows)
+    """An epoch's batches from memory: the rows in a permutation drawn from (seed, epoch, 1), or with
+    ``case_balance`` as many rows drawn with replacement, weighted by their case size's rarity."""
+    sizes = bank.view_state[rows].sum(axis=1).astype(np.int64)
+    order = epoch_order(
+        rows, sizes, np.random.default_rng(np.random.SeedSequence([options.seed, epoch, 1])), options.case_balance
+    )
     num_points = options.num_points
     for start in range(0, len(order), options.batch_size):
         rows_now = order[start : start + options.batch_size]

@@ -63,7 +63,7 @@ register_shipped(
     ShippedPlanner(
         name="nbv",
         file="nbv.pt",
-        sha256="",
+        sha256="fac57beea62d9975525fc62d82b071ca11d39f60dde0c5a8ff6d2db92aba8ad1",
         summary="the next-best-view planner, played step by step",
     )
 )
@@ -71,7 +71,7 @@ register_shipped(
     ShippedPlanner(
         name="oneshot",
         file="oneshot.pt",
-        sha256="",
+        sha256="3016d3bfbf172454e0f383236cd5ef521848ff5ca3897e688e3a3ae6e4c779d3",
         summary="the one-shot planner, its views taken at once",
     )
 )

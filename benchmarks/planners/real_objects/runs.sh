@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Every training run of the real-object study (issue 49), on the datasets of datasets.sh in WORK.
+# Usage: runs.sh WORK [RUN ...]   (no RUN: all of them). A finished run (its folder holds done) is
+# skipped; a killed one resumes from its last.pt. One thread each: two runs side by side on 2 cores.
+set -euo pipefail
+work="${1:?usage: runs.sh WORK [RUN ...]}"; shift
+runs="$work/runs"; mkdir -p "$runs"
+train_none=("--data" "$work/real-train-none" "--val-data" "$work/real-val-none")
+
+recipe() {  # the osvp train arguments of a run, by name
+  case "$1" in
+    # next-best-view planners on the real objects, refiner none (their labels do not depend on it)
+    nbvnet-bv-4k)  echo "${train_none[*]} --network nbvnet --target best_view --steps 4000" ;;
+    pcnbv-gain-4k) echo "${train_none[*]} --network osvp --target gain --source observed --steps 4000" ;;
+    nbvnet-nb-4k)  echo "${train_none[*]} --network nbvnet --target near_best --steps 4000" ;;
+    nbvnet-nb-8k)  echo "${train_none[*]} --network nbvnet --target near_best --steps 8000" ;;
+    scvp-nb-8k)    echo "${train_none[*]} --network scvp --target near_best --steps 8000" ;;
+    nbvnet-nb-cb5-8k) echo "${train_none[*]} --network nbvnet --target near_best --steps 8000 --case-balance 0.5" ;;
+    scvp-nb-cb5-8k)   echo "${train_none[*]} --network scvp --target near_best --steps 8000 --case-balance 0.5" ;;
+    # one-shot planners: partial cover at tau 0.9 (label-margin.md's best one-shot objective)
+    pcnbv-nb-8k)   echo "${train_none[*]} --network osvp --target near_best --source observed --steps 8000" ;;
+    oneshot-mc-8k) echo "--data $work/real-train-none-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 8000" ;;
+    *) echo "unknown run $1" >&2; return 1 ;;
+  esac
+}
+
+all=(nbvnet-bv-4k pcnbv-gain-4k nbvnet-nb-4k nbvnet-nb-8k scvp-nb-8k nbvnet-nb-cb5-8k scvp-nb-cb5-8k pcnbv-nb-8k oneshot-mc-8k)
+for name in "${@:-${all[@]}}"; do
+  out="$runs/$name"
+  [ -f "$out/done" ] && continue
+  resume=(); [ -f "$out/last.pt" ] && resume=(--resume)
+  # shellcheck disable=SC2046
+  osvp train $(recipe "$name") --out "$out" --threads 1 "${resume[@]}" > "$runs/$name.log" 2>&1
+  touch "$out/done"
+done
