@@ -160,3 +160,23 @@ def test_the_card_names_the_refiner_weights_its_samples_record(tmp_path: Path) -
     text = card_text(url, dataset.info, dataset_stats(dataset), None, None, None, ["sha256:" + "ab" * 32])
     assert f"- refiner weights (sha256, as each sample records them): sha256:{'ab' * 32}" in text
     assert "refiner weights" not in card_text(url, dataset.info, dataset_stats(dataset), None, None, None, [])
+
+
+def test_the_card_quotes_the_licence_a_corpus_table_states_for_each_folder(tmp_path: Path) -> None:
+    """A corpus's SOURCES.md with one table row per folder: the card quotes each folder's licence and
+    source (a reader sees the terms, not only where to look for them); a folder it has no row for
+    keeps the path alone."""
+    corpus = tmp_path / "corpus"
+    for name in ("ycb", "kit", "other"):
+        (corpus / name).mkdir(parents=True)
+    (corpus / "SOURCES.md").write_text(
+        "# Real objects\n\n| folder | objects | source | licence |\n|---|---|---|---|\n"
+        "| `ycb/` | 2 | github a/b at 123 | CC BY 4.0 |\n| `kit/` | 1 | github c/d | research use |\n\nNotes\n"
+    )
+    sources = mesh_sources(
+        [str(corpus / "ycb" / "a.ply"), str(corpus / "kit" / "b.obj"), str(corpus / "other" / "c.obj")]
+    )
+    notes = {Path(s.where).name: s.notes for s in sources}
+    assert notes["ycb"] == ("licence: CC BY 4.0 (source: github a/b at 123)", str(corpus / "SOURCES.md"))
+    assert notes["kit"] == ("licence: research use (source: github c/d)", str(corpus / "SOURCES.md"))
+    assert notes["other"] == (str(corpus / "SOURCES.md"),)

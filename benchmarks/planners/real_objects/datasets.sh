@@ -26,6 +26,8 @@ printf 'rotations = 2\n' > "$work/poco-r2.toml"
 printf 'refiner = "none"\nrotations = 2\n' > "$work/none-r2.toml"
 submit --objects "$here/train.txt" --config "$work/poco-r2.toml" --out "$work/real-train-poco-r2"
 submit --objects "$here/train.txt" --config "$work/none-r2.toml" --out "$work/real-train-none-r2"
+relabel real-train-poco-r2 real-train-poco-r2-tau90 --objective partial_cover --tau 0.9 --workers 2
+relabel real-train-none-r2 real-train-none-r2-tau90 --objective partial_cover --tau 0.9 --workers 2
 submit --objects "$here/val.txt" --out "$work/real-val-poco"
 submit --objects "$here/train.txt" --out "$work/real-train-poco"
 echo "== $(date -u +%FT%TZ) done"

@@ -150,13 +150,13 @@ def own_counts(report: dict[str, Any], planners: dict[str, str]) -> list[str]:
             continue
         found = own_count(report, spec)
         lines.append(
-            f"| {name} | {found['views']:.2f} | {100 * found['coverage']:.2f} | {100 * found['over_floor']:+.2f} "
+            f"| {name} | {found['views']:.2f} | {found['coverage']:.2f} | {found['over_floor']:+.2f} "
             f"| {found['objects_below']:.0f} |"
         )
     if not lines:
         return []
     head = [
-        "| planner | views | coverage % | over the better of fixed and spread | objects below |",
+        "| planner | views | coverage % | over the better of fixed and spread (points) | objects below |",
         "|---|---:|---:|---:|---:|",
     ]
     return ["At its own view count:", "", *head, *lines]
