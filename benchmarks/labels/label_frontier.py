@@ -1,5 +1,5 @@
 """Coverage against views of the oracle's labels as alpha varies, per refiner (`datagen evaluate`'s
-machinery; README "Evaluate what a dataset's labels achieve").
+machinery; docs/guide/evaluate.md).
 
 Each scene is imaged once and refined once per refiner; every alpha then relabels the same refined
 views, so the sweep costs one refinement per scene. Comparing refiners at one alpha mixes two
