@@ -19,9 +19,8 @@ recipe() {  # the osvp train arguments of a run, by name
     scvp-nb-cb5-8k)   echo "${train_none[*]} --network scvp --target near_best --steps 8000 --case-balance 0.5" ;;
     # one-shot planners: partial cover at tau 0.9 (label-margin.md's best one-shot objective)
     pcnbv-nb-8k)   echo "${train_none[*]} --network osvp --target near_best --source observed --steps 8000" ;;
-    scvp-mc-8k)    echo "--data $work/real-train-none-tau90 --val-data $work/real-val-none-tau90 --network scvp --target mincover --steps 8000" ;;
     oneshot-mc-8k) echo "--data $work/real-train-none-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 8000" ;;
-    # the real-object learning curve (scvp near_best, the shipped nbv's recipe, at 2,000 steps): 25, 50,
+    # the real-object learning curve (scvp near_best, the shipped nbv's recipe, at 1,000 steps): 25, 50,
     # 100 and all 171 training objects (--max-objects draws nested seeded subsets), from random weights
     # and fine-tuned from the planner pre-trained on the 1,000 synthetic objects
     scvp-nb-synth-4k) echo "--data $work/synth1000-none --val-data $work/real-val-none --network scvp --target near_best --steps 4000" ;;
@@ -29,11 +28,11 @@ recipe() {  # the osvp train arguments of a run, by name
       n="${1#lc-}"; n="${n%-*}"; init=""
       [ "${1##*-}" = init ] && init="--init $runs/scvp-nb-synth-4k/best.pt"
       all=""; [ "$n" = all ] || all="--max-objects $n"
-      echo "${train_none[*]} --network scvp --target near_best --steps 2000 $all $init" ;;
+      echo "${train_none[*]} --network scvp --target near_best --steps 1000 $all $init" ;;
     # does refinement buy learning value? the one-shot recipe on POCO's and on no refiner's labels of the
     # same objects and rotations (2 of 8), equal steps, the same validation objects
-    os-poco-r2) echo "--data $work/real-train-poco-r2-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 4000" ;;
-    os-none-r2) echo "--data $work/real-train-none-r2-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 4000" ;;
+    os-poco-r2) echo "--data $work/real-train-poco-r2-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 2000" ;;
+    os-none-r2) echo "--data $work/real-train-none-r2-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 2000" ;;
     *) echo "unknown run $1" >&2; return 1 ;;
   esac
 }
