@@ -2,7 +2,7 @@
 
     python -m benchmarks.scale.dataset_commands --source before=/tmp/base-storage --source after=. \\
         [--sizes 1000 10000 100000] [--before-sizes 1000 10000] [--work /work/runs/scale] \\
-        --out benchmarks/scale/results/storage.md --plot benchmarks/scale/results/storage.png
+        --out benchmarks/scale/results/dataset-commands.md --plot benchmarks/scale/results/dataset-commands.png
 
 Per source tree and size N, the dataset is made by `benchmarks.scale.datasets` (a real job's tasks
 written again under new ids through that tree's own writer and commit path, then finalised: the

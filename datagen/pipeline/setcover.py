@@ -29,8 +29,8 @@ Why a search before the MIP: the covers are over at most 64 views, labels have a
 and every row's views are few, so branching on the row with the fewest views, with a packing bound
 (pairwise disjoint rows each need a view of their own), settles a case in thousands of nodes. On
 the hardest built-in (torus_knot_3_5: ~1,000 rows after reduction, labels of 6-7 views) HiGHS's
-branch and bound took 2-14 s per case, the search 0.15 s on average (measured by the former
-`benchmarks/labels.py`; `benchmarks/labels/label_search.py` now times the search against HiGHS).
+branch and bound took 2-14 s per case, the search 0.15 s on average (measured by a former
+labels benchmark; `benchmarks/generation/label_search.py` now times the search against HiGHS).
 """
 
 from __future__ import annotations
@@ -612,7 +612,7 @@ def cover_model(
     """The set-cover model over ``candidates``: one column per view (bounds ``lower``..``upper``,
     default 0..1, integer unless ``relax``), one row per mask (the sum of the candidates covering it
     >= 1) and, with ``cardinality``, a row sum(x) == cardinality; the one way to build one
-    (the former ``benchmarks/labels.py`` solved it on unreduced rows as its naive baseline)."""
+    (the former ``studies/labels.py`` solved it on unreduced rows as its naive baseline)."""
     m = len(candidates)
     starts, columns = _incidence(rows, candidates)
     num_rows = len(rows)

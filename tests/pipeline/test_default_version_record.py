@@ -10,7 +10,7 @@ wrote it). Another CPU may round a float kernel of the network differently (thei
 `PocoModel.decode_inference`), which can move a key across the threshold; so a cloud's size may move
 by 0.5 % and one label of a task may differ, and no more. ``python tests/pipeline/test_default_version_record.py
 --record`` writes the record again: only for a new default version, judged first
-(`benchmarks/labels/version_labels.py`).
+(`studies/labels/version_labels.py`).
 """
 
 from __future__ import annotations

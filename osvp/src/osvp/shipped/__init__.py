@@ -1,7 +1,7 @@
 """Planners that ship inside osvp: ``datagen evaluate --planner shipped:NAME`` with no training.
 
 Each is a small checkpoint beside this module, trained by the committed commands of
-``benchmarks/planners/real_objects/`` on the real-object split, with its sha256 and a training card
+``studies/planners/real_objects/`` on the real-object split, with its sha256 and a training card
 (data, config, steps, scores) in `CARDS`. `load_shipped` is the `schemas.planning.ScorerFactory` osvp
 registers as entry point ``shipped`` (pyproject.toml): it checks the file's hash before torch reads a
 byte, so a missing, truncated or replaced checkpoint is one line naming the fix, never a planner that

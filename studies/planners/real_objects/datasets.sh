@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# The datasets of issue 49, made with the service itself into WORK (default ../real-work beside the checkout):
+#   real-{train,val}-none  the split's training and validation objects, 8 rotations, refiner none, default voxel
+#   synth1000-none         1,000 synthetic objects (seed 23, the learning curve's), 2 rotations, refiner none
+#   real-{train,val}-none-tau90  their relabels for the one-shot planner: partial cover at tau 0.9
+#   real-{train,val}-poco  the same real objects at the paper's settings (the default config: POCO, 8
+#                          rotations, default voxel); with real-train-none, the refinement comparison
+#   real-{train,val}-poco-tau90  their relabels for the one-shot planner
+# Each line is one `datagen submit`; running the script again resumes what is not done (committed tasks
+# are kept, never recomputed). The none datasets come first: they train the next-view planners in minutes,
+# whose labels do not depend on the refiner (docs/pipeline.md section 8.1).
+set -euo pipefail
+here="$(cd "$(dirname "$0")" && pwd)"
+work="${1:-$here/../../../../real-work}"
+mkdir -p "$work"
+printf 'refiner = "none"\n' > "$work/none.toml"
+printf 'refiner = "none"\nrotations = 2\n' > "$work/synth.toml"
+submit() { echo "== $(date -u +%FT%TZ) $*"; datagen submit "$@"; }
+submit --objects "$here/train.txt" --config "$work/none.toml" --out "$work/real-train-none"
+submit --objects "$here/val.txt" --config "$work/none.toml" --out "$work/real-val-none"
+[ -f "$work/synth/objects.txt" ] || datagen objects synth --count 1000 --seed 23 --out "$work/synth"
+submit --objects "$work/synth/objects.txt" --config "$work/synth.toml" --out "$work/synth1000-none"
+relabel() { [ -f "$work/$2/dataset.json" ] || datagen shards relabel "$work/$1" --out "$work/$2" "${@:3}"; }
+relabel real-train-none real-train-none-tau90 --objective partial_cover --tau 0.9 --workers 2
+relabel real-val-none real-val-none-tau90 --objective partial_cover --tau 0.9 --workers 2
+submit --objects "$here/train.txt" --out "$work/real-train-poco"
+relabel real-train-poco real-train-poco-tau90 --objective partial_cover --tau 0.9 --workers 2
+submit --objects "$here/val.txt" --out "$work/real-val-poco"
+relabel real-val-poco real-val-poco-tau90 --objective partial_cover --tau 0.9 --workers 2
+echo "== $(date -u +%FT%TZ) done"
