@@ -19,10 +19,11 @@ from fractions import Fraction
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from schemas.errors import DatagenError
-from schemas.objectives import Objective, label_fields, objective_named
+from schemas.objectives import OBJECTIVES, Objective, label_fields, objective_named
+from schemas.refiners import RefinerKind, refiner_kind
 
 MAX_VIEWS = 64
 """Cases are stored as one uint64 bit mask, so at most 64 candidate views."""
@@ -35,6 +36,16 @@ BUILTIN_POCO_WEIGHTS_FILE: Path | None = None
 finds ``datagen/data/poco_small.pt`` beside the installed datagen package."""
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+
+RECORDED = {"recorded": True}
+"""The validation context of a config a dataset recorded (`schemas.dataset.DatasetInfo`): a refiner or
+label objective that a plug-in registered where the dataset was made is taken by its name where the
+plug-in is not installed, so the dataset reads anywhere; only what needs the plug-in's code (making
+samples, checking labels with its judge) asks for it."""
+
+
+def _recorded(info: ValidationInfo) -> bool:
+    return isinstance(info.context, dict) and bool(info.context.get("recorded"))
 
 
 class _Frozen(BaseModel):
@@ -110,6 +121,10 @@ FIELDS_ADDED_LATER: dict[str, object] = {
 """Fields that enter the hash only when they differ from the value that reproduces what datasets
 made before them hold; a stored config without one reads as that value (`stored_config`)."""
 
+REFINER_FIELDS_ADDED_LATER = frozenset({"poco_version"})
+"""Fields added after datasets of other refiners existed: they enter the hash only when the config's
+refiner reads them (`RefinerKind.fields`), so those datasets keep their identity."""
+
 
 def stored_config(data: Any) -> Any:
     """A config as a dataset or a job recorded it, with the fields it predates filled in with the values
@@ -151,7 +166,9 @@ class GenerationConfig(_Frozen):
     # Section 3: imaging
     imaging: Literal["targets", "pixels"] = "targets"
     # Section 4: refinement
-    refiner: Literal["none", "carve", "poisson", "poco"] = "poco"
+    refiner: str = "poco"
+    """Which registered refiner predicts R(O) (`schemas.refiners.REFINERS`: none, carve, poisson, poco
+    and any installed plug-in)."""
     band: PositiveFloat = 0.01
     poco_preset: str = "small_sv"
     poco_weights: str = BUILTIN_POCO_WEIGHTS
@@ -210,8 +227,16 @@ class GenerationConfig(_Frozen):
 
     @field_validator("label_objective")
     @classmethod
-    def _registered_objective(cls, value: str) -> str:
-        objective_named(value)
+    def _registered_objective(cls, value: str, info: ValidationInfo) -> str:
+        if not _recorded(info):
+            objective_named(value)
+        return value
+
+    @field_validator("refiner")
+    @classmethod
+    def _registered_refiner(cls, value: str, info: ValidationInfo) -> str:
+        if not _recorded(info):
+            refiner_kind(value)
         return value
 
     @field_validator("size_range")
@@ -230,7 +255,8 @@ class GenerationConfig(_Frozen):
 
     @model_validator(mode="after")
     def _tie_break_of_covers(self) -> GenerationConfig:
-        if not self.objective.ranks_ties and self.label_tie_break != "index":
+        objective = OBJECTIVES.get(self.label_objective)  # None: a recorded plug-in's, not installed here
+        if objective is not None and not objective.ranks_ties and self.label_tie_break != "index":
             raise ValueError(
                 f"label_tie_break = {self.label_tie_break!r} ranks views by the cover problem's U; the "
                 f"{self.label_objective!r} objective breaks ties by view index: leave label_tie_break = 'index'"
@@ -240,6 +266,11 @@ class GenerationConfig(_Frozen):
     @property
     def num_views(self) -> int:
         return self.view_space.count
+
+    @property
+    def refiner_kind(self) -> RefinerKind:
+        """The refiner's registered `RefinerKind`."""
+        return refiner_kind(self.refiner)
 
     @property
     def objective(self) -> Objective:
@@ -287,13 +318,16 @@ class GenerationConfig(_Frozen):
         for name, value in FIELDS_ADDED_LATER.items():
             if data[name] == value:
                 del data[name]  # a dataset made before the field existed keeps its hash
-        if self.refiner != "poco":
-            data.pop("poco_version", None)  # only the poco refiner reads it: other datasets keep their hash
+        kind = self.refiner_kind
+        for name in REFINER_FIELDS_ADDED_LATER - set(kind.fields):
+            data.pop(name, None)  # a refiner that does not read it: its datasets keep their hash
         for name in label_fields() - set(self.objective.fields):
             del data[name]  # a field the objective does not read changes no sample
         if self.view_space.is_file:
             data["view_space"]["source"] = "sha256:" + file_sha256(Path(self.view_space.source))
-        if self.refiner == "poco" or self.poco_weights != BUILTIN_POCO_WEIGHTS:
+        for name in kind.files:  # what the refiner loads enters by content
+            data[name] = "sha256:" + file_sha256(self.named_files()[name])
+        if self.poco_weights != BUILTIN_POCO_WEIGHTS:  # a path names its file by content, whoever reads it
             data["poco_weights"] = "sha256:" + file_sha256(self.poco_weights_path())
         return data
 

@@ -6,7 +6,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, field_validator
 
-from schemas.config import GenerationConfig, stored_config
+from schemas.config import RECORDED, GenerationConfig, stored_config
 
 DATASET_FILE = "dataset.json"
 CARD_FILE = "README.md"
@@ -30,8 +30,11 @@ class DatasetInfo(BaseModel):
     @field_validator("config", mode="before")
     @classmethod
     def _as_recorded(cls, value: Any) -> Any:
-        """A dataset keeps the config it was made with: fields it predates read as what reproduces it."""
-        return stored_config(value)
+        """A dataset keeps the config it was made with: fields it predates read as what reproduces it,
+        and a plug-in's refiner or objective is taken by name where the plug-in is not installed."""
+        if isinstance(value, GenerationConfig):
+            return value
+        return GenerationConfig.model_validate(stored_config(value), context=RECORDED)
 
     @property
     def num_views(self) -> int:

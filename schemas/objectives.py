@@ -14,12 +14,12 @@ pass the objects themselves. Adding an objective is its labeller, its judge and 
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 from schemas.errors import DatagenError
+from schemas.registry import Registry, load_named
 
 JudgedOn = Literal["refined", "visible"]
 
@@ -72,34 +72,28 @@ class Objective:
 
 
 def _resolve(target: str | Callable[..., Any], what: str) -> Callable[..., Any]:
-    if callable(target):
-        return target
-    if not target:
-        raise UnknownObjective(f"{what} is not given")
-    module, _, attribute = target.partition(":")
-    try:
-        found: Callable[..., Any] = getattr(importlib.import_module(module), attribute)
-    except (ImportError, AttributeError) as error:
-        raise UnknownObjective(f"{what} ({target}) cannot be loaded: {error}") from None
+    found: Callable[..., Any] = load_named(target, what, UnknownObjective)
     return found
 
 
-OBJECTIVES: dict[str, Objective] = {}
-"""Every label objective by name, in registration order."""
+OBJECTIVES: Registry[Objective] = Registry(
+    "label objective",
+    "datagen.objectives",
+    error=UnknownObjective,
+    check=lambda entry: isinstance(entry, Objective),
+)
+"""Every label objective by name, in registration order; a package adds one as an entry point of
+the group ``datagen.objectives`` naming its `Objective`."""
 
 
 def register_objective(objective: Objective) -> Objective:
-    """Register ``objective`` under its name (a second registration of a name replaces the first)."""
-    OBJECTIVES[objective.name] = objective
-    return objective
+    """Register ``objective`` under its name (once)."""
+    return OBJECTIVES.register(objective.name, objective)
 
 
 def objective_named(name: str) -> Objective:
     """The registered objective ``name``; `UnknownObjective` naming the known ones otherwise."""
-    try:
-        return OBJECTIVES[name]
-    except KeyError:
-        raise UnknownObjective(f"unknown label objective {name!r}; choose one of {', '.join(OBJECTIVES)}") from None
+    return OBJECTIVES[name]
 
 
 def label_fields() -> frozenset[str]:

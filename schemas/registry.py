@@ -13,10 +13,11 @@ plug-ins of one name the first in sorted order is kept (the one `entries` lists,
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 from schemas.errors import DatagenError
 
@@ -63,6 +64,25 @@ def load_entry(point: EntryPoint) -> object:
         ) from None
 
 
+def load_named(target: str | Callable[..., Any], what: str, error: type[Exception] = PluginError) -> Any:
+    """``target`` itself when it is an object, else the attribute a ``"module:attribute"`` string
+    names, imported now: how an entry names code that must not be imported before it is used (the
+    generator's side of an objective or a refiner, from the reader's install)."""
+    if not isinstance(target, str):
+        return target
+    if not target:
+        raise error(f"{what} is not given")
+    module, _, attribute = target.partition(":")
+    try:
+        return getattr(importlib.import_module(module), attribute)
+    except (ImportError, AttributeError) as failure:
+        raise error(f"{what} ({target}) cannot be loaded: {failure}") from None
+
+
+KINDS: list[Registry[Any]] = []
+"""Every registry made, in the order their modules were imported (one per plug-in kind)."""
+
+
 class Registry(Generic[T]):
     """Entries of one plug-in kind by name, in registration order (built-ins first, then plug-ins
     sorted by name).
@@ -92,6 +112,7 @@ class Registry(Generic[T]):
         self._check = check
         self._entries: dict[str, Registered[T]] = {}
         self._plugins_read = False
+        KINDS.append(self)
 
     # -- filling ----------------------------------------------------------------------------------
 
@@ -107,6 +128,9 @@ class Registry(Generic[T]):
     def unregister(self, name: str) -> None:
         """Remove ``name`` (a test's toy, after the test); an unknown name is left alone."""
         self._entries.pop(name, None)
+
+    def __delitem__(self, name: str) -> None:
+        self.unregister(name)
 
     def read_plugins(self) -> None:
         """Register every installed entry point of the group not yet registered (once a process)."""
@@ -153,8 +177,9 @@ class Registry(Generic[T]):
 
     def entries(self, plugins: bool = True) -> list[Registered[T]]:
         """Every entry with its source, built-ins first (``plugins``: the installed ones too)."""
-        if plugins:
-            self.read_plugins()
+        if not plugins:
+            return [found for found in self._entries.values() if found.source == BUILT_IN]
+        self.read_plugins()
         return list(self._entries.values())
 
     def names(self, plugins: bool = True) -> tuple[str, ...]:

@@ -8,8 +8,11 @@ from pathlib import Path
 
 import pytest
 from support.meshes import SHARED_MESHES, shared_mesh_paths
+from support.plugins import forget_plugins
 from support.s3_servers import STORES, S3Server, moto_server, seaweedfs_server, weed_binary
 from typer.testing import CliRunner
+
+from schemas import registry
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
@@ -22,6 +25,16 @@ def runner(monkeypatch: pytest.MonkeyPatch) -> CliRunner:
     monkeypatch.setattr(common.console, "_width", 400)
     monkeypatch.setattr(common.error_console, "_width", 400)
     return CliRunner()
+
+
+@pytest.fixture
+def no_plugins(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """As if no distribution had installed a plug-in of any kind (`schemas.registry`), for one test."""
+    forget_plugins()
+    monkeypatch.setattr(registry, "entry_points", lambda group: [])
+    yield
+    monkeypatch.undo()
+    forget_plugins()
 
 
 @pytest.fixture(scope="session")

@@ -44,10 +44,10 @@ def _planner_help(load: bool = False) -> str:
 
 
 def _refiner_help() -> str:
-    """``--refiner``'s help, from the refiner registry (`datagen.pipeline.refine.factory.BUILDERS`)."""
-    from datagen.pipeline.refine.factory import BUILDERS
+    """``--refiner``'s help, from the refiner registry (`schemas.refiners.REFINERS`, plug-ins included)."""
+    from schemas.refiners import REFINERS
 
-    *others, last = BUILDERS
+    *others, last = REFINERS.names()
     return f"{', '.join(others)} or {last} (default: the config's); repeatable."
 
 

@@ -44,7 +44,7 @@ import numpy as np
 
 from datagen.engine.worker import TaskBody, TaskOutcome, execute_task
 from datagen.errors import ConfigError, DatagenError
-from datagen.pipeline.refine.factory import HOSTED
+from datagen.pipeline.refine.factory import network_hosting
 from datagen.pipeline.step_timing import step_totals
 from datagen.pipeline.viewspace import build_view_space
 from jobs.ledger import CANCELLED, DONE, FAILED, FINAL_STATES, PENDING, RUNNING, Holders, Job, Ledger
@@ -304,7 +304,7 @@ def run_job(
     try:
         device = "cuda" if refiner_gpus > 0 else "cpu"
         prefix = ""
-        hosting = HOSTED.get(config.refiner)
+        hosting = network_hosting(config)
         if shared_refiner and hosting is not None and hosting.shares(config):
             from datagen.engine.refiner_host import start_hosts
 

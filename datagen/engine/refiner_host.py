@@ -17,6 +17,7 @@ import os
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any, cast
 
+from datagen.errors import ConfigError
 from schemas.config import GenerationConfig
 
 if TYPE_CHECKING:  # torch comes with them: imported where a host or a hosted task runs
@@ -30,16 +31,19 @@ HOST_CALLS = 1024
 
 class RefinerHost:
     """The actor's body: the config's refiner network on ``device``, served by the `NetworkHost` its
-    refiner's entry in `datagen.pipeline.refine.factory.HOSTED` builds."""
+    refiner kind's hosting builds (`schemas.refiners.RefinerKind.hosting`)."""
 
     def __init__(self, config_json: str, device: str, encoder_batch: int) -> None:
         import torch
 
-        from datagen.pipeline.refine.factory import HOSTED
+        from datagen.pipeline.refine.factory import network_hosting
 
         torch.set_num_threads(1)  # the one CPU the actor reserves, as a worker's torch (`fixed_torch_threads`)
         config = GenerationConfig.model_validate_json(config_json)
-        self.host = HOSTED[config.refiner].host(config, device, encoder_batch)
+        hosting = network_hosting(config)
+        if hosting is None:
+            raise ConfigError(f"refiner {config.refiner!r} has no network a shared host can run")
+        self.host = hosting.host(config, device, encoder_batch)
 
     def run(self, jobs: list[NetworkJob]) -> NetworkReply:
         return self.host.run(jobs)

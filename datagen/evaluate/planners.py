@@ -36,7 +36,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from importlib.metadata import EntryPoint, entry_points
+from importlib.metadata import EntryPoint
 
 import numpy as np
 
@@ -54,6 +54,7 @@ from datagen.evaluate.protocol import MATCH_PREFIX, Plan, Planner, PlannerContex
 from datagen.evaluate.scored import ScoredPlanner, plugin_scorer
 from datagen.evaluate.situation import Situation
 from schemas.planning import PLANNER_ENTRY_POINTS, NextViewScorer
+from schemas.registry import Registry, plugin_source
 
 
 class GreedyPlanner:
@@ -122,8 +123,14 @@ class PlannerKind:
     """The entry point of a plug-in kind (None for a built-in)."""
 
 
-BUILTIN_PLANNERS: dict[str, PlannerKind] = {}
-"""The planners datagen itself provides, by name (`register_planner`); a plugin never takes one's name."""
+def _plugin_kind(plugin: EntryPoint) -> PlannerKind:
+    """An installed plug-in's planner kind, its module imported only when a planner of it is built."""
+    return PlannerKind(plugin.name, _plugin_builder(plugin), f"{plugin.name}:ARG", plugin_source(plugin), plugin)
+
+
+PLANNERS: Registry[PlannerKind] = Registry("planner", PLANNER_ENTRY_POINTS, error=PlannerError, adapt=_plugin_kind)
+"""Every planner one can name: the built-ins (`register_planner`), then each installed plug-in (an
+entry point of `PLANNER_ENTRY_POINTS`, the first of a name; one named like a built-in is never used)."""
 
 
 def register_planner(name: str, usage: str) -> Callable[[PlannerBuilder], PlannerBuilder]:
@@ -131,23 +138,15 @@ def register_planner(name: str, usage: str) -> Callable[[PlannerBuilder], Planne
     entry point's name)."""
 
     def register(build: PlannerBuilder) -> PlannerBuilder:
-        BUILTIN_PLANNERS[name] = PlannerKind(name, build, usage)
+        PLANNERS.register(name, PlannerKind(name, build, usage))
         return build
 
     return register
 
 
 def planner_kinds() -> dict[str, PlannerKind]:
-    """Every planner one can name, in one mapping: the built-ins, then each installed plugin (entry
-    points of group `PLANNER_ENTRY_POINTS`, the first of a name; one named like a built-in is never
-    used), imported only when a planner of it is built."""
-    kinds = dict(BUILTIN_PLANNERS)
-    for plugin in entry_points(group=PLANNER_ENTRY_POINTS):
-        if plugin.name not in kinds:
-            dist = plugin.dist
-            source = f"distribution {dist.name} {dist.version}" if dist is not None else "a plugin"
-            kinds[plugin.name] = PlannerKind(plugin.name, _plugin_builder(plugin), f"{plugin.name}:ARG", source, plugin)
-    return kinds
+    """Every planner one can name, in one mapping: the built-ins, then each installed plugin."""
+    return dict(PLANNERS.items())
 
 
 def plugin_usage(kind: PlannerKind) -> str:
@@ -172,10 +171,10 @@ def installed_plugins() -> dict[str, PlannerKind]:
 
 def lookup_planner(name: str, spec: str | None = None) -> PlannerKind:
     """The planner kind called ``name``, built-in or plugin; one `PlannerError` line naming the choices."""
-    kinds = planner_kinds()
-    if name not in kinds:
-        raise PlannerError(f"unknown planner {spec or name!r}; choose {planner_help(kinds)}")
-    return kinds[name]
+    found = PLANNERS.get(name)
+    if found is None:
+        raise PlannerError(f"unknown planner {spec or name!r}; choose {planner_help()}")
+    return found
 
 
 def planner_help(kinds: dict[str, PlannerKind] | None = None, load: bool = False) -> str:

@@ -36,8 +36,7 @@ from datagen.pipeline.setcover import LabelError
 from datagen.pipeline.thread_limits import fixed_torch_threads, single_threaded_blas
 from datagen.pipeline.viewspace import build_view_space
 from schemas.config import GenerationConfig
-
-REFINERS = ("none", "carve", "poisson", "poco")
+from schemas.refiners import REFINERS
 
 
 @dataclass(frozen=True)
@@ -105,7 +104,7 @@ def parse_selection(text: str, count: int, what: str) -> tuple[int, ...]:
 def refiner_config(config: GenerationConfig, refiner: str) -> GenerationConfig:
     """The config with another refiner, validated like a loaded one."""
     if refiner not in REFINERS:
-        raise ConfigError(f"unknown refiner {refiner!r}; choose one of {', '.join(REFINERS)}")
+        raise ConfigError(f"unknown refiner {refiner!r}; choose one of {', '.join(REFINERS.names())}")
     return GenerationConfig.model_validate({**config.model_dump(), "refiner": refiner})
 
 

@@ -18,9 +18,9 @@ from pathlib import Path
 
 from datagen.evaluate.training_room import Room
 from datagen.inspection.stats import DatasetStats
-from datagen.pipeline.refine.factory import REFINER_FIELDS
 from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
+from schemas.refiners import REFINERS
 
 LICENCE_NOTES = ("LICENSE", "LICENCE", "SOURCES", "README", "COPYING")
 """File name starts that hold what is known of a mesh folder's origin and terms."""
@@ -208,7 +208,8 @@ def card_text(
 
 def _protocol(config: GenerationConfig) -> list[str]:
     space = config.view_space
-    settings = ", ".join(f"{name} {getattr(config, name)}" for name in REFINER_FIELDS.get(config.refiner, ()))
+    kind = REFINERS.get(config.refiner)  # a plug-in refiner not installed here: its name alone
+    settings = ", ".join(f"{name} {getattr(config, name)}" for name in (kind.fields if kind else ()))
     refiner = config.refiner + (f" ({settings})" if settings else "")
     camera = config.camera
     return [

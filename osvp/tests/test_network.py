@@ -134,10 +134,10 @@ def test_grid_presets_round_trip_and_refusals() -> None:
 
 def test_every_architecture_has_the_same_preset_names_and_a_default_target() -> None:
     from osvp.architectures import ARCHITECTURES, architecture
-    from osvp.loss import TARGETS
+    from osvp.loss import targets
 
     assert sorted(ARCHITECTURES) == ["nbvnet", "osvp", "scvp"]
     for family in ARCHITECTURES.values():
-        assert sorted(family.presets) == ["paper", "small"] and family.default_target in TARGETS
-    with pytest.raises(ValueError, match="unknown network 'pointnet'; choose nbvnet, osvp, scvp"):
+        assert sorted(family.presets) == ["paper", "small"] and family.default_target in targets()
+    with pytest.raises(ValueError, match="unknown network 'pointnet'; choose one of osvp, nbvnet, scvp"):
         architecture("pointnet")

@@ -12,7 +12,7 @@ import pytest
 import torch
 from osvp.checkpoint import CheckpointError, load_checkpoint
 from osvp.data import DataError, SampleBank, split_rows
-from osvp.loss import AMBIGUITY_TARGETS, NEXT_VIEW_TARGETS, TARGETS
+from osvp.loss import ambiguity_targets, next_view_targets, targets
 from osvp.metrics import tune_threshold
 from osvp.network import PRESETS, build_network
 from osvp.planning import load_scorer
@@ -47,7 +47,7 @@ def test_one_epoch_changes_the_weights_and_lowers_the_loss(bank: SampleBank, dat
     assert (tmp_path / "run" / "curves.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.parametrize("target", TARGETS)
+@pytest.mark.parametrize("target", targets())
 def test_resume_gives_the_weights_of_an_uninterrupted_run(
     target: str, bank: SampleBank, dataset_url: str, tmp_path: Path
 ) -> None:
@@ -59,7 +59,7 @@ def test_resume_gives_the_weights_of_an_uninterrupted_run(
     assert a.epoch == b.epoch == 2 and a.target == b.target == target
     assert a.tuned_threshold == b.tuned_threshold == straight.history[-1]["tuned_threshold"]
     expected_metric = {"near_best": "chosen_gain_ratio"}.get(
-        target, "best_view_accuracy" if target in NEXT_VIEW_TARGETS else "size_cover_f1"
+        target, "best_view_accuracy" if target in next_view_targets() else "size_cover_f1"
     )
     assert straight.best_metric == expected_metric and all(row["train_loss"] > 0 for row in straight.history)
     for key, value in a.data["model"].items():
@@ -171,7 +171,7 @@ def test_a_version_1_dataset_trains_on_labels_and_refuses_the_other_targets(
     assert 0.05 <= outcome.history[0]["tuned_threshold"] <= 0.95
     header = (tmp_path / "run" / "metrics.csv").read_text().splitlines()[0].split(",")
     assert "cover_f1" in header and "size_views" in header  # empty cells where there are no covers
-    for target in AMBIGUITY_TARGETS:
+    for target in ambiguity_targets():
         with pytest.raises(DataError, match=f"target '{target}' needs every sample's minimum covers") as info:
             train(options(v1_dataset_url, tmp_path / target, target=target), bank=old)
         assert "datagen shards relabel" in str(info.value) and not (tmp_path / target).exists()

@@ -123,19 +123,20 @@ def test_missing_objects_file_is_one_error_line(runner: CliRunner, tmp_path: Pat
     assert "objects file not found" in line
 
 
-def test_help_is_written_from_the_registries(runner: CliRunner, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_help_is_written_from_the_registries(
+    runner: CliRunner, monkeypatch: pytest.MonkeyPatch, request: pytest.FixtureRequest
+) -> None:
     """`--planner` and `--refiner` list what the registries hold (issue 42: no list kept by hand beside
     them), a planner registered later included."""
     from datagen.evaluate import planners
-    from datagen.pipeline.refine.factory import BUILDERS
+    from schemas.refiners import REFINERS
 
-    monkeypatch.setitem(
-        planners.BUILTIN_PLANNERS, "toy", planners.PlannerKind("toy", lambda spec, context: None, "toy, toy:K")
-    )
+    planners.PLANNERS.register("toy", planners.PlannerKind("toy", lambda spec, context: None, "toy, toy:K"))
+    request.addfinalizer(lambda: planners.PLANNERS.unregister("toy"))
     monkeypatch.setenv("COLUMNS", "4000")
     result = runner.invoke(app, ["evaluate", "--help"])
     assert result.exit_code == 0
     text = " ".join(result.stdout.replace("│", " ").split())
-    for kind in planners.BUILTIN_PLANNERS.values():
+    for kind in planners.PLANNERS.values(plugins=False):
         assert kind.usage in text, kind.usage
-    assert "toy, toy:K" in text and all(name in text for name in BUILDERS)
+    assert "toy, toy:K" in text and all(name in text for name in REFINERS)

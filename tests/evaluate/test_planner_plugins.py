@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support.plugins import forget_plugins
 
 from datagen.errors import PlannerError
-from datagen.evaluate import planners as planners_module
 from datagen.evaluate import scored as scored_module
 from datagen.evaluate.planners import installed_plugins, lookup_planner, make_planner, planner_help, planner_kinds
 from datagen.evaluate.run import EvaluationSpec, evaluate
@@ -73,11 +73,14 @@ def install(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Iterator[Install
         (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: 0.1\n")
         (info / "entry_points.txt").write_text(f"[{PLANNER_ENTRY_POINTS}]\n{entry or dist} = {module}:make\n")
         modules.append(module)
+        forget_plugins()  # the registries read the installed entry points again
         return site
 
     yield add
     for module in modules:
         sys.modules.pop(module, None)
+    monkeypatch.undo()
+    forget_plugins()
 
 
 def test_the_osvp_entry_point_is_registered() -> None:
@@ -127,9 +130,8 @@ def test_a_broken_plugin_is_one_line_naming_its_distribution(install: Install) -
         make_planner("odd:x")
 
 
-def test_a_plugin_that_is_not_installed_is_an_unknown_planner(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_plugin_that_is_not_installed_is_an_unknown_planner(no_plugins: None) -> None:
     """No name is special: without its entry point, osvp is unknown like any other plugin."""
-    monkeypatch.setattr(planners_module, "entry_points", lambda group: [])
     with pytest.raises(PlannerError) as info:
         make_planner("osvp:run/best.pt")
     message = str(info.value)

@@ -12,7 +12,6 @@ import numpy.typing as npt
 import pytest
 
 from datagen.errors import DatagenError, PlannerError
-from datagen.evaluate import planners as planners_module
 from datagen.evaluate.baselines import AllPlanner, RandomPlanner
 from datagen.evaluate.episode import run_episode
 from datagen.evaluate.oracle import OraclePlanner
@@ -366,8 +365,7 @@ def test_make_planner_missing_checkpoint(tmp_path: Path) -> None:
         make_planner(f"osvp:{tmp_path}")  # a folder is not a checkpoint
 
 
-def test_make_planner_without_the_osvp_package(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(planners_module, "entry_points", lambda group: [])  # no planner plugin installed
+def test_make_planner_without_the_osvp_package(tmp_path: Path, no_plugins: None) -> None:
     checkpoint = tmp_path / "model.pt"
     checkpoint.write_bytes(b"not really a checkpoint")
     with pytest.raises(PlannerError, match="unknown planner 'osvp:") as info:

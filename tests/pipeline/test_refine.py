@@ -151,11 +151,11 @@ def test_make_refiner_unknown_is_a_config_error() -> None:
 
 
 def test_make_refiner_names_every_refiner() -> None:
-    from datagen.pipeline.refine.factory import BUILDERS
+    from schemas.refiners import REFINERS
 
-    assert set(BUILDERS) == {"none", "carve", "poisson", "poco"}
+    assert REFINERS.names() == ("none", "carve", "poisson", "poco")
     config = GenerationConfig.model_construct(**{**GenerationConfig().__dict__, "refiner": "marching"})
-    with pytest.raises(ConfigError, match=r"use 'none', 'carve', 'poisson' or 'poco'$"):
+    with pytest.raises(ConfigError, match=r"unknown refiner 'marching'; choose one of none, carve, poisson, poco$"):
         make_refiner(config)
 
 

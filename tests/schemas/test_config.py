@@ -604,3 +604,25 @@ def test_poco_version_3_is_chosen_by_name_and_no_version_past_it_exists() -> Non
     assert GenerationConfig(poco_version=3).poco_version == 3
     with pytest.raises(ValidationError, match="poco_version"):
         GenerationConfig(poco_version=4)
+
+
+@pytest.mark.parametrize(
+    ("fields", "recorded"),
+    [
+        ({"refiner": "none"}, "2351d4b92c8fe757e16ac7dbeaa5b5d866e15612c2b39e2403f3e1edc7e6dbf0"),
+        ({"refiner": "none", "poco_version": 3}, "2351d4b92c8fe757e16ac7dbeaa5b5d866e15612c2b39e2403f3e1edc7e6dbf0"),
+        ({"refiner": "carve"}, "48451f7ba8733c686d7b1af429f567ba53c41db91e4dbc975accb0b3c4b632ec"),
+        ({"refiner": "poisson"}, "582817a348360073b75c7c8022f9f4bc4e7320c9748bb492abf542fc5fa53414"),
+        ({"refiner": "poco"}, "a4a5d2b1c2ae5ebdb47e585d708a24c181f944b93c8badbcdb5504ec26c288a6"),
+        ({"refiner": "poco", "poco_version": 1}, "7a7fd1010539c62684e31002577c3545aa56cd2529021138367db8bfb5babc1c"),
+    ],
+)
+def test_each_refiners_configs_keep_the_hash_their_datasets_were_made_with(fields: dict, recorded: str) -> None:
+    """Recorded before refiners became registered kinds (`schemas.refiners`): the kind's fields and
+    files decide what enters the hash, as the name branches did (the none one is real-train-none's)."""
+    assert GenerationConfig(**fields).config_hash() == recorded
+
+
+def test_an_unknown_refiner_is_refused_by_name() -> None:
+    with pytest.raises(ValueError, match="unknown refiner 'marching'; choose one of none, carve, poisson, poco"):
+        GenerationConfig(refiner="marching")

@@ -1,8 +1,10 @@
-"""Build the refiner a config names: `BUILDERS` maps each refiner name to a small builder function.
+"""Build the refiner a config names: the builders and the network hosting the built-in refiners'
+`schemas.refiners.RefinerKind` entries name.
 
 The ``poisson`` and ``poco`` builders import their modules (Open3D, torch) only when called, so a
 worker that never uses them never loads them; a missing optional dependency is a `ConfigError` that
-says what to install.
+says what to install. `make_refiner` asks the registry, so a plug-in refiner (an entry point of
+``datagen.refiners``) is built here like a built-in one.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from datagen.pipeline.refine.base import Refiner
 from datagen.pipeline.refine.carve import CarveRefiner
 from datagen.pipeline.refine.none import NoRefiner
 from schemas.config import GenerationConfig
+from schemas.refiners import UnknownRefiner
 
 if TYPE_CHECKING:
     from datagen.pipeline.refine.poco.network_jobs import NetworkRunner
@@ -96,23 +99,6 @@ def load_poco_refiner(
     return PocoRefiner(config, model, sha, config.poco_threshold, config.finetune_steps, device=device, network=network)
 
 
-BUILDERS: dict[str, RefinerBuilder] = {
-    "none": build_none,
-    "carve": build_carve,
-    "poisson": build_poisson,
-    "poco": build_poco,
-}
-
-
-REFINER_FIELDS: dict[str, tuple[str, ...]] = {
-    "none": (),
-    "carve": (),
-    "poisson": ("poisson_depth",),
-    "poco": ("poco_version", "poco_preset", "poco_threshold", "finetune_steps"),
-}
-"""The config fields each refiner reads besides the band (what a dataset card states of it)."""
-
-
 @dataclass(frozen=True)
 class NetworkHosting:
     """How a refiner with a network lets one host per node run it for every task there
@@ -131,17 +117,21 @@ def _poco_host(config: GenerationConfig, device: str, encoder_batch: int) -> Any
     return NetworkHost(refiner.model, refiner.weights_id, device, refiner.knn_backend, encoder_batch=encoder_batch)
 
 
-HOSTED: dict[str, NetworkHosting] = {
-    "poco": NetworkHosting(lambda config: config.finetune_steps == 0, _poco_host),
-}
-"""The refiners whose network a shared host can run; a fine-tuned network is each observation's own."""
+POCO_HOSTING = NetworkHosting(lambda config: config.finetune_steps == 0, _poco_host)
+"""The ``poco`` refiner's network on a shared host; a fine-tuned network is each observation's own."""
 
 
 def make_refiner(config: GenerationConfig, device: str = "cpu", network: NetworkRunner | None = None) -> Refiner:
     """The config's refiner; ``device`` ('cpu' or 'cuda') places a learned one (RunSettings.refiner_gpus),
     ``network`` runs its network elsewhere (RunSettings.shared_refiner)."""
-    builder = BUILDERS.get(config.refiner)
-    if builder is None:
-        *others, last = (repr(name) for name in BUILDERS)
-        raise ConfigError(f"refiner = {config.refiner!r} is not available; use {', '.join(others)} or {last}")
-    return builder(config, device, network)
+    try:
+        build: RefinerBuilder = config.refiner_kind.load_build()
+    except UnknownRefiner as error:
+        raise ConfigError(str(error)) from None
+    return build(config, device, network)
+
+
+def network_hosting(config: GenerationConfig) -> NetworkHosting | None:
+    """How one host per node may run the config's refiner network, or None (`RefinerKind.hosting`)."""
+    hosting = config.refiner_kind.load_hosting()
+    return hosting if isinstance(hosting, NetworkHosting) else None

@@ -21,6 +21,8 @@ from torch import nn
 
 from osvp.grid_network import NBVNET_PRESETS, SCVP_PRESETS, GridNetwork, GridPreset
 from osvp.network import PRESETS, NetworkPreset, OSVPNetwork
+from schemas.errors import DatagenError
+from schemas.registry import Registry
 
 Reads = Literal["points", "grid"]
 DEFAULT_ARCHITECTURE = "osvp"
@@ -57,22 +59,24 @@ class Architecture:
         return self.presets[name]
 
 
-ARCHITECTURES: dict[str, Architecture] = {}
-"""The registered architectures by name (`register_architecture`)."""
+class UnknownNetwork(DatagenError, ValueError):
+    """A network family no `Architecture` is registered for."""
+
+
+ARCHITECTURES: Registry[Architecture] = Registry(
+    "network", "osvp.networks", error=UnknownNetwork, check=lambda entry: isinstance(entry, Architecture)
+)
+"""The network families by name (`register_architecture`); a package adds one as an entry point of
+the group ``osvp.networks`` naming its `Architecture`."""
 
 
 def register_architecture(architecture: Architecture) -> Architecture:
     """Add a family to `ARCHITECTURES` (a name is registered once)."""
-    if architecture.name in ARCHITECTURES:
-        raise ValueError(f"architecture {architecture.name!r} is already registered")
-    ARCHITECTURES[architecture.name] = architecture
-    return architecture
+    return ARCHITECTURES.register(architecture.name, architecture)
 
 
 def architecture(name: str) -> Architecture:
-    """The registered architecture ``name``, or one `ValueError` line listing the choices."""
-    if name not in ARCHITECTURES:
-        raise ValueError(f"unknown network {name!r}; choose {', '.join(sorted(ARCHITECTURES))}")
+    """The registered architecture ``name``, or one `UnknownNetwork` line listing the choices."""
     return ARCHITECTURES[name]
 
 
@@ -128,5 +132,6 @@ def architecture_help() -> str:
     return "; ".join(f"{name}: {family.summary}" for name, family in ARCHITECTURES.items())
 
 
-PRESET_NAMES = tuple(sorted({name for family in ARCHITECTURES.values() for name in family.presets}))
-"""Every preset name some architecture has (each architecture has ``small`` and ``paper``)."""
+def preset_names() -> tuple[str, ...]:
+    """Every preset name some architecture has (each built-in has ``small`` and ``paper``), sorted."""
+    return tuple(sorted({name for family in ARCHITECTURES.values() for name in family.presets}))

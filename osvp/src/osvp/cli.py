@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from osvp.architectures import ARCHITECTURES, DEFAULT_ARCHITECTURE, PRESET_NAMES, architecture_help
+from osvp.architectures import ARCHITECTURES, DEFAULT_ARCHITECTURE, architecture_help, preset_names
 from osvp.checkpoint import Checkpoint, load_checkpoint
 from osvp.data import DataError, SampleBank
 from osvp.decoding import Decoding, parse_decoding
-from osvp.loss import DEFAULT_LAMBDA, NEXT_VIEW_TARGETS, TARGETS
+from osvp.loss import DEFAULT_LAMBDA, is_next_view, targets
 from osvp.metrics import decoded_metrics
 from osvp.prior import ViewStatePrior
 from osvp.stream import MEMORY_LIMIT_GB, VAL_CAP, choose_streaming
@@ -83,7 +83,7 @@ def _parser() -> argparse.ArgumentParser:
             default=DEFAULT_ARCHITECTURE,
             help=architecture_help(),
         )
-        sub.add_argument("--preset", choices=PRESET_NAMES, default="small", help="the network's size (default small)")
+        sub.add_argument("--preset", choices=preset_names(), default="small", help="the network's size (default small)")
         sub.add_argument("--epochs", type=int, default=30)
         sub.add_argument(
             "--steps",
@@ -127,7 +127,7 @@ def _parser() -> argparse.ArgumentParser:
         sub.add_argument("--resume", action="store_true", help="continue the run in --out from its last epoch")
         sub.add_argument(
             "--target",
-            choices=TARGETS,
+            choices=targets(),
             default="",
             help="loss (default: the network's best measured one, mincover for osvp and scvp, best_view for nbvnet): "
             "label is the stored label's SCLoss (the paper's); with a version-2 dataset marginal, mincover (the "
@@ -368,7 +368,7 @@ def _eval(args: argparse.Namespace) -> int:
         "view_state_prior": baseline,
     }
     next_view: dict[str, float] = {}
-    if checkpoint.target in NEXT_VIEW_TARGETS:  # a next-best-view planner is judged by its next view
+    if is_next_view(checkpoint.target):  # a next-best-view planner is judged by its next view
         next_view = result["next_view"] = next_view_figures(bank, rows, probabilities, checkpoint.target)
     if args.json:
         print(json.dumps(result, indent=1))

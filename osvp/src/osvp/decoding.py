@@ -27,6 +27,8 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from schemas.registry import Registry
+
 PAPER_THRESHOLD = 0.5
 TINY = 0.05
 """``size`` selects nothing when every free view's probability is below this."""
@@ -63,15 +65,16 @@ class DecodingRule(Protocol):
         ...
 
 
-DECODING_REGISTRY: dict[str, DecodingRule] = {}
-"""The decodings by name, in registration order (`register_decoding`)."""
+DECODING_REGISTRY: Registry[DecodingRule] = Registry("decoding", "osvp.decodings", error=ValueError)
+"""The decodings by name, in registration order (`register_decoding`); a package adds one as an entry
+point of the group ``osvp.decodings`` naming an instance of its rule."""
 
 
 def register_decoding(name: str) -> Callable[[type[DecodingRule]], type[DecodingRule]]:
     """Register a decoding: a new one is one decorated class with `value` and `take`."""
 
     def register(rule: type[DecodingRule]) -> type[DecodingRule]:
-        DECODING_REGISTRY[name] = rule()
+        DECODING_REGISTRY.register(name, rule())
         return rule
 
     return register
@@ -80,7 +83,7 @@ def register_decoding(name: str) -> Callable[[type[DecodingRule]], type[Decoding
 def _no_value(text: str, argument: str | None) -> None:
     if argument is not None:
         name = text.partition("=")[0]
-        raise ValueError(f"decoding {text!r}: {name!r} takes no value; choose {', '.join(DECODING_REGISTRY)}")
+        raise ValueError(f"decoding {text!r}: {name!r} takes no value; choose {', '.join(DECODING_REGISTRY.names())}")
 
 
 @register_decoding("threshold")
@@ -136,8 +139,9 @@ class _TopK:
         return _most_probable(p, free, np.full(p.shape[0], int(value or 0), dtype=np.int64))
 
 
-DECODINGS = tuple(DECODING_REGISTRY)
-"""The registered decodings' names."""
+def decodings() -> tuple[str, ...]:
+    """The registered decodings' names (installed plug-ins included)."""
+    return DECODING_REGISTRY.names()
 
 
 def parse_decoding(text: str, tuned_threshold: float | None = None) -> Decoding:
@@ -147,7 +151,7 @@ def parse_decoding(text: str, tuned_threshold: float | None = None) -> Decoding:
     name, equals, argument = text.partition("=")
     rule = DECODING_REGISTRY.get(name)
     if rule is None:
-        raise ValueError(f"unknown decoding {text!r}; choose {', '.join(DECODING_REGISTRY)}")
+        raise ValueError(f"unknown decoding {text!r}; choose {', '.join(DECODING_REGISTRY.names())}")
     return Decoding(name, rule.value(text, argument if equals else None, tuned_threshold))
 
 
@@ -172,8 +176,6 @@ def select_views(
         raise ValueError(f"probabilities {p.shape} and view state {state.shape} must be one (n,) or (S, n) shape")
     if p.ndim == 1:
         return select_views(p[None], state[None], chosen)[0]
-    if chosen.name not in DECODING_REGISTRY:
-        raise ValueError(f"unknown decoding {chosen.name!r}; choose {', '.join(DECODING_REGISTRY)}")
     return DECODING_REGISTRY[chosen.name].take(p, ~state, chosen.value)
 
 

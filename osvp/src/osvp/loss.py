@@ -27,6 +27,10 @@ from typing import Protocol
 import torch
 import torch.nn.functional as F
 
+from schemas.errors import DatagenError
+from schemas.registry import Registry
+from storage.sample_fields import SAMPLE_FIELDS
+
 DEFAULT_LAMBDA = 1.25
 
 
@@ -180,28 +184,61 @@ TargetLoss = Callable[[torch.Tensor, TargetBatch, float], torch.Tensor]
 
 @dataclass(frozen=True)
 class Target:
-    """A training target: its loss, whether it reads the samples' ties (a version-2 dataset), and the
-    dataset version it needs."""
+    """A training target: its loss and the batch fields it reads (`storage.sample_fields` names, which
+    decide the dataset version it needs and whether it needs the minimum covers)."""
 
     name: str
     loss: TargetLoss
-    needs_ties: bool
-    since: int = 1
+    reads: tuple[str, ...]
+    """The `osvp.data.Batch` fields the loss reads; each a registered sample field."""
     selected_by: str | None = None
     """The validation figure ``best.pt`` maximises, when not the kind's default (`osvp.train.selection_metric`)."""
+    figures: tuple[str, ...] = ()
+    """Validation figures it adds beside its kind's (``gain_mae`` for a gain regression)."""
+
+    @property
+    def needs_ties(self) -> bool:
+        """Whether it reads what a dataset keeps about the minimum covers (schema version 2 on)."""
+        return any(SAMPLE_FIELDS[name].covers for name in self.reads)
+
+    @property
+    def reads_covers(self) -> bool:
+        """Whether its batches carry the listed covers (padded per batch)."""
+        return "covers" in self.reads
+
+    @property
+    def since(self) -> int:
+        """The first schema version whose datasets hold every field it reads."""
+        return max([1, *(SAMPLE_FIELDS[name].since for name in self.reads)])
+
+    @property
+    def next_view(self) -> bool:
+        """Whether it trains a next-best-view planner: it reads the next-view labels (version 3)."""
+        return self.since >= 3
 
 
-TARGET_REGISTRY: dict[str, Target] = {}
-"""The targets `osvp train --target` can name, in registration order (`register_target`)."""
+class UnknownTarget(DatagenError, ValueError):
+    """A training target no `Target` is registered for."""
+
+
+TARGET_REGISTRY: Registry[Target] = Registry(
+    "training target", "osvp.targets", error=UnknownTarget, check=lambda entry: isinstance(entry, Target)
+)
+"""The targets `osvp train --target` can name, in registration order (`register_target`); a package
+adds one as an entry point of the group ``osvp.targets`` naming its `Target`."""
 
 
 def register_target(
-    name: str, needs_ties: bool = True, since: int = 1, selected_by: str | None = None
+    name: str, reads: tuple[str, ...], selected_by: str | None = None, figures: tuple[str, ...] = ()
 ) -> Callable[[TargetLoss], TargetLoss]:
-    """Register a target: a new one is one decorated function of (logits, batch, lambda)."""
+    """Register a target: a new one is one decorated function of (logits, batch, lambda) and the
+    batch fields it reads."""
+    unknown = [field for field in reads if field not in SAMPLE_FIELDS]
+    if unknown:
+        raise ValueError(f"target {name!r} reads {', '.join(unknown)}, which no sample field is")
 
     def register(loss: TargetLoss) -> TargetLoss:
-        TARGET_REGISTRY[name] = Target(name, loss, needs_ties, max(since, 2 if needs_ties else 1), selected_by)
+        TARGET_REGISTRY.register(name, Target(name, loss, reads, selected_by, figures))
         return loss
 
     return register
@@ -213,59 +250,70 @@ def _need(target: str, value: torch.Tensor | None, what: str, logits: torch.Tens
     return value.to(logits.device)
 
 
-@register_target("label", needs_ties=False)
+@register_target("label", reads=("label",))
 def _label(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     return sc_loss(logits, batch.label.to(logits.device), lambda_)
 
 
-@register_target("marginal")
+@register_target("marginal", reads=("marginals",))
 def _marginal(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     return marginal_loss(logits, _need("marginal", batch.marginals, "marginals", logits), lambda_)
 
 
-@register_target("mincover")
+@register_target("mincover", reads=("covers", "cover_mask"))
 def _mincover(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     covers = _need("mincover", batch.covers, "covers", logits)
     return mincover_loss(logits, covers, _need("mincover", batch.cover_mask, "cover mask", logits), lambda_)
 
 
-@register_target("support")
+@register_target("support", reads=("label", "support"))
 def _support(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     labels = batch.label.to(logits.device)
     return support_loss(logits, labels, _need("support", batch.support, "support", logits), lambda_)
 
 
-@register_target("gain", needs_ties=False, since=3)
+@register_target("gain", reads=("view_gain",), figures=("gain_mae",))
 def _gain(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     if batch.view_gain is None:
         raise ValueError("target 'gain' needs every view's gain (a version-3 dataset)")
     return gain_loss(logits, batch.view_gain.to(logits.device))
 
 
-@register_target("best_view", needs_ties=False, since=3)
+@register_target("best_view", reads=("view_state", "best_view"))
 def _best_view(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     if batch.best_view is None:
         raise ValueError("target 'best_view' needs every sample's best next view (a version-3 dataset)")
     return best_view_loss(logits, batch.view_state.to(logits.device), batch.best_view.to(logits.device))
 
 
-@register_target("near_best", needs_ties=False, since=3, selected_by="chosen_gain_ratio")
+@register_target("near_best", reads=("view_state", "view_gain"), selected_by="chosen_gain_ratio")
 def _near_best(logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     if batch.view_gain is None:
         raise ValueError("target 'near_best' needs every view's gain (a version-3 dataset)")
     return near_best_loss(logits, batch.view_state.to(logits.device), batch.view_gain.to(logits.device))
 
 
-TARGETS = tuple(TARGET_REGISTRY)
-"""The registered targets' names."""
-AMBIGUITY_TARGETS = tuple(name for name, target in TARGET_REGISTRY.items() if target.needs_ties)
-"""Targets that need every sample's minimum covers (schema version 2)."""
-NEXT_VIEW_TARGETS = tuple(name for name, target in TARGET_REGISTRY.items() if target.since >= 3)
-"""Targets that train a next-best-view planner on every view's gain (schema version 3)."""
+def targets() -> tuple[str, ...]:
+    """The registered targets' names (installed plug-ins included)."""
+    return TARGET_REGISTRY.names()
+
+
+def ambiguity_targets() -> tuple[str, ...]:
+    """Targets that need every sample's minimum covers (schema version 2)."""
+    return tuple(name for name, target in TARGET_REGISTRY.items() if target.needs_ties)
+
+
+def next_view_targets() -> tuple[str, ...]:
+    """Targets that train a next-best-view planner on every view's gain (schema version 3)."""
+    return tuple(name for name, target in TARGET_REGISTRY.items() if target.next_view)
+
+
+def is_next_view(target: str) -> bool:
+    """Whether ``target`` (a registered name) trains a next-best-view planner."""
+    found = TARGET_REGISTRY.get(target)
+    return found is not None and found.next_view
 
 
 def target_loss(target: str, logits: torch.Tensor, batch: TargetBatch, lambda_: float) -> torch.Tensor:
     """The loss of the registered ``target`` on a batch, on the logits' device."""
-    if target not in TARGET_REGISTRY:
-        raise ValueError(f"unknown target {target!r}; choose {', '.join(TARGET_REGISTRY)}")
     return TARGET_REGISTRY[target].loss(logits, batch, lambda_)

@@ -24,8 +24,8 @@ import numpy.typing as npt
 import torch
 
 from osvp.checkpoint import Checkpoint, load_checkpoint
-from osvp.decoding import DECODINGS, parse_decoding, select_views
-from osvp.loss import NEXT_VIEW_TARGETS
+from osvp.decoding import decodings, parse_decoding, select_views
+from osvp.loss import is_next_view
 from schemas.planning import DecodingScorer, NextViewObservation, ScorerFactory
 from storage.resampling import resample_cloud
 
@@ -46,7 +46,7 @@ class CheckpointScorer(DecodingScorer):
         self.tuned_threshold = checkpoint.tuned_threshold
         self.default_decoding = checkpoint.decoding
         self.decodings: tuple[str, ...] = tuple(
-            name for name in DECODINGS if name != "tuned" or self.tuned_threshold is not None
+            name for name in decodings() if name != "tuned" or self.tuned_threshold is not None
         )
         """Decoding names this checkpoint accepts (``tuned`` only when it holds a tuned threshold)."""
         self.generation_config = checkpoint.generation_config
@@ -102,7 +102,7 @@ def load_scorer(path: str | Path, device: str = "cpu") -> CheckpointScorer | Nex
     """The scorer of an `osvp train` checkpoint (`CheckpointError` names what is wrong with the file):
     a one-shot `CheckpointScorer`, or a `NextViewCheckpointScorer` for a checkpoint of a next-view target."""
     checkpoint = load_checkpoint(path)
-    if checkpoint.target in NEXT_VIEW_TARGETS:
+    if is_next_view(checkpoint.target):
         return NextViewCheckpointScorer(checkpoint, device)
     return CheckpointScorer(checkpoint, device)
 

@@ -55,7 +55,7 @@ from osvp.data import (
     training_subset,
 )
 from osvp.decoding import PAPER_THRESHOLD, Decoding
-from osvp.loss import AMBIGUITY_TARGETS, NEXT_VIEW_TARGETS, TARGET_REGISTRY, TARGETS, target_loss
+from osvp.loss import TARGET_REGISTRY, is_next_view, target_loss, targets
 from osvp.metrics import decoded_metrics, tune_threshold
 from osvp.stream import (
     MEMORY_LIMIT_GB,
@@ -155,6 +155,11 @@ class TrainOptions:
         return architecture(self.network)
 
     @property
+    def reads_covers(self) -> bool:
+        """Whether the target's batches carry the listed minimum covers (`osvp.loss.Target.reads`)."""
+        return TARGET_REGISTRY[self.target].reads_covers
+
+    @property
     def num_points(self) -> int:
         """Points per cloud in a batch (one for a grid network, which reads none)."""
         return self.architecture.preset(self.preset).num_points
@@ -169,8 +174,8 @@ class TrainOptions:
         presets = self.architecture.presets
         if self.preset not in presets:
             raise DataError(f"unknown preset {self.preset!r}; choose {', '.join(sorted(presets))}")
-        if self.target and self.target not in TARGETS:
-            raise DataError(f"unknown target {self.target!r}; choose {', '.join(TARGETS)}")
+        if self.target and self.target not in TARGET_REGISTRY:
+            raise DataError(f"unknown target {self.target!r}; choose {', '.join(targets())}")
         if self.max_objects is not None and self.max_objects < 1:
             raise DataError(f"max objects {self.max_objects} must be >= 1")
         check_sample_fraction(self.sample_fraction)
@@ -246,16 +251,17 @@ class TrainOutcome:
 
 def covers_needed(target: str) -> str | None:
     """What needs the minimum covers when training or scoring ``target``: None for ``label``."""
-    return f"target {target!r}" if target in AMBIGUITY_TARGETS else None
+    found = TARGET_REGISTRY.get(target)
+    return f"target {target!r}" if found is not None and found.needs_ties else None
 
 
 def selection_metric(bank: SampleBank, target: str = "label") -> str:
     """The validation figure ``best.pt`` maximises: for a next-view target, how often the largest
     predicted gain is the best next view; else F1."""
-    chosen = TARGET_REGISTRY[target].selected_by if target in TARGET_REGISTRY else None
-    if chosen is not None:
-        return chosen
-    if target in NEXT_VIEW_TARGETS:
+    found = TARGET_REGISTRY.get(target)
+    if found is not None and found.selected_by is not None:
+        return found.selected_by
+    if is_next_view(target):
         return "best_view_accuracy"
     return "size_cover_f1" if bank.covers is not None else "f1"
 
@@ -337,7 +343,7 @@ def train(
             options.batch_size,
             options.seed,
             options.source,
-            covers=options.target == "mincover",
+            covers=options.reads_covers,
             workers=options.workers,
             shuffle_buffer=options.shuffle_buffer,
             pin_memory=options.device.startswith("cuda"),
@@ -449,7 +455,7 @@ def validation_figures(
     ``rows``, in order."""
     state, labels = bank.view_state[rows], bank.labels[rows]
     figures: dict[str, float] = {}
-    if target in NEXT_VIEW_TARGETS:
+    if is_next_view(target):
         figures = next_view_figures(bank, rows, probabilities, target)
     for prefix, decoding in EPOCH_DECODINGS.items():
         scores = decoded_metrics(probabilities, state, labels, decoding, covers).as_dict()
@@ -476,7 +482,7 @@ def next_view_figures(
     if seen_more.any():  # what the chosen view sees of what the best one would: 1 for a view as good as the best
         taken = gains[np.arange(len(rows)), chosen]
         figures["chosen_gain_ratio"] = float(np.mean(taken[seen_more] / best_gain[seen_more]))
-    if target == "gain":
+    if "gain_mae" in TARGET_REGISTRY[target].figures:  # a regression of the gains
         figures["gain_mae"] = float(np.mean(np.abs(predicted - gains)))
     return figures
 
@@ -502,7 +508,7 @@ def predict_rows(
                 num_points,
                 options.seed if seed is None else seed,
                 VALIDATION_EPOCH,
-                with_covers=options.target == "mincover",
+                with_covers=options.reads_covers,
             )
             logits = forward(network, options.architecture, batch, options.device).cpu()
             total += float(target_loss(options.target, logits, batch, options.lambda_)) * len(chosen)
@@ -515,7 +521,7 @@ def predict_rows(
 def require_next_view_data(options: TrainOptions, schema_version: int | None = None) -> None:
     """Refuse, before any sample is read, a next-view target or a grid network on a dataset before
     version 3 (``schema_version`` None: read from the dataset's record), naming the relabel."""
-    needs = f"target {options.target!r}" if options.target in NEXT_VIEW_TARGETS else ""
+    needs = f"target {options.target!r}" if is_next_view(options.target) else ""
     needs = needs or (f"network {options.network!r}" if case_fields(options.architecture) else "")
     if not needs:
         return
@@ -563,7 +569,7 @@ def _bank_batches(bank: SampleBank, rows: npt.NDArray[np.int64], options: TrainO
     num_points = options.num_points
     for start in range(0, len(order), options.batch_size):
         rows_now = order[start : start + options.batch_size]
-        yield bank.batch(rows_now, num_points, options.seed, epoch, with_covers=options.target == "mincover")
+        yield bank.batch(rows_now, num_points, options.seed, epoch, with_covers=options.reads_covers)
 
 
 def _train_epoch(

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from schemas.errors import DatagenError
+from schemas.registry import Registry
 
 if TYPE_CHECKING:
     from osvp.planning import CheckpointScorer, NextViewCheckpointScorer
@@ -33,30 +34,35 @@ class ShippedPlanner:
     file: str
     sha256: str
     summary: str
+    folder: Path | None = None
+    """Where the checkpoint and its card live: a plug-in's own package folder (None: osvp's, `HERE`)."""
 
     @property
     def path(self) -> Path:
-        return HERE / self.file
+        return (self.folder or HERE) / self.file
 
     @property
     def card(self) -> Path:
         """The training card beside the checkpoint: data, config, commands, steps and scores."""
-        return HERE / f"{self.name}.md"
+        return (self.folder or HERE) / f"{self.name}.md"
 
 
 class ShippedPlannerError(DatagenError):
     """A shipped planner is unknown, missing or not the file its hash names."""
 
 
-SHIPPED: dict[str, ShippedPlanner] = {}
-"""The shipped planners by name (`register_shipped`)."""
+SHIPPED: Registry[ShippedPlanner] = Registry(
+    "shipped planner",
+    "osvp.shipped_planners",
+    error=ShippedPlannerError,
+    check=lambda entry: isinstance(entry, ShippedPlanner),
+)
+"""The shipped planners by name (`register_shipped`); a package ships one more as an entry point of
+the group ``osvp.shipped_planners`` naming its `ShippedPlanner` (its checkpoint in its own folder)."""
 
 
 def register_shipped(planner: ShippedPlanner) -> ShippedPlanner:
-    if planner.name in SHIPPED:
-        raise ValueError(f"shipped planner {planner.name!r} is already registered")
-    SHIPPED[planner.name] = planner
-    return planner
+    return SHIPPED.register(planner.name, planner)
 
 
 register_shipped(
@@ -79,9 +85,9 @@ register_shipped(
 
 def verified_path(name: str) -> Path:
     """The checkpoint of shipped planner ``name`` once its bytes match its recorded sha256."""
-    if name not in SHIPPED:
+    planner = SHIPPED.get(name)
+    if planner is None:
         raise ShippedPlannerError(f"no shipped planner {name!r}; choose {', '.join(f'shipped:{n}' for n in SHIPPED)}")
-    planner = SHIPPED[name]
     reinstall = "reinstall osvp (pip install --force-reinstall ./osvp)"
     if not planner.path.is_file():
         raise ShippedPlannerError(f"shipped:{name}: its checkpoint {planner.path} is missing; {reinstall}")
