@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib.metadata import EntryPoint, entry_points
 from typing import Any, Generic, TypeVar
@@ -131,6 +132,21 @@ class Registry(Generic[T]):
 
     def __delitem__(self, name: str) -> None:
         self.unregister(name)
+
+    def pop(self, name: str) -> T:
+        """Remove ``name`` and give its entry (a test's toy, after the test)."""
+        found = self._entries.pop(name)
+        return found.entry
+
+    @contextmanager
+    def replaced(self, name: str, entry: T) -> Iterator[T]:
+        """``entry`` stands in for the registered ``name`` inside the block (a test's stand-in)."""
+        before = self._entries[name]
+        self._entries[name] = Registered(name, entry, before.source)
+        try:
+            yield entry
+        finally:
+            self._entries[name] = before
 
     def read_plugins(self) -> None:
         """Register every installed entry point of the group not yet registered (once a process)."""

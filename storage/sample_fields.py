@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from schemas.registry import Registry
 from schemas.shard import (
     COVERAGE_GAINS,
     COVERS,
@@ -142,8 +143,11 @@ class SampleField:
         return found if not isinstance(found, np.ndarray) else Stacked(found)
 
 
-SAMPLE_FIELDS: dict[str, SampleField] = {}
-"""Every registered field, by name."""
+SAMPLE_FIELDS: Registry[SampleField] = Registry(
+    "sample field", "datagen.sample_fields", error=ValueError, check=lambda entry: isinstance(entry, SampleField)
+)
+"""Every registered field, by name; a package adds one as an entry point of the group
+``datagen.sample_fields`` naming its `SampleField` (or a module whose `register_field` calls run on import)."""
 
 CORE_FIELDS = ("points", "view_state", "label", "index")
 """The fields every batch has."""
@@ -166,9 +170,7 @@ def register_field(
         raise ValueError(f"{name!r} cannot name a sample field")
 
     def register(hold: Hold) -> Hold:
-        if name in SAMPLE_FIELDS:
-            raise ValueError(f"sample field {name!r} is registered twice")
-        SAMPLE_FIELDS[name] = SampleField(name, since, hold, finish, optional, covers, padded, columns)
+        SAMPLE_FIELDS.register(name, SampleField(name, since, hold, finish, optional, covers, padded, columns))
         return hold
 
     return register

@@ -217,9 +217,28 @@ def path_problems(found: list[Mention]) -> list[str]:
 # -- modules -----------------------------------------------------------------------------------------
 
 
+REGISTRY_MODULES = (
+    "schemas.objectives",
+    "schemas.refiners",
+    "storage.export",
+    "storage.sample_fields",
+    "datagen.evaluate.planners",
+    "osvp.architectures",
+    "osvp.loss",
+    "osvp.decoding",
+    "osvp.shipped",
+)
+"""The modules that make a plug-in registry (`schemas.registry.KINDS`): each names its entry-point group."""
+
+
 @cache
 def entry_point_groups() -> frozenset[str]:
-    return frozenset(importlib.metadata.entry_points().groups)
+    """The groups installed packages use, and every registry's own (one may have no plug-in installed)."""
+    from schemas import registry
+
+    for module in REGISTRY_MODULES:
+        importlib.import_module(module)
+    return frozenset(importlib.metadata.entry_points().groups) | {kind.group for kind in registry.KINDS}
 
 
 def spec_of(name: str) -> Any:

@@ -12,7 +12,7 @@ from typing import Any
 
 from storage.export.base import Export, Layout, Progress
 from storage.export.options import EMPTY_LABEL, NO_NEXT_VIEW, NO_POINTS, PROVENANCE_JSON, PROVENANCE_MD, ROOT_FILES
-from storage.export.registry import LAYOUTS, check_layout, layout_named
+from storage.export.registry import LAYOUTS, check_layout, layout_named, register_layout
 from storage.export.run import export
 from storage.export.streams import sample_rng
 
@@ -30,6 +30,7 @@ __all__ = [
     "export",
     "export_air",
     "layout_named",
+    "register_layout",
     "sample_rng",
 ]
 

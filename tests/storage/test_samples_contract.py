@@ -372,20 +372,20 @@ def test_cloud_size_is_each_samples_stored_cloud_in_every_batch_reader(covered: 
     assert sizes.tolist() == [dataset.keys(1).shape[0], dataset.keys(0).shape[0]]
 
 
-def test_a_fields_reader_is_the_only_place_that_names_it(covered: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_fields_reader_is_the_only_place_that_names_it(covered: Path) -> None:
     """Swapping the registered reader of a field changes what both batch readers give, unchanged."""
     from storage.stream import ShardStream
 
     def label_bits(rows: ShardRows) -> np.ndarray:  # a stand-in reader: each sample's label mask
         return np.asarray(rows.array(MASKS), dtype=np.int64)[rows.local, LABEL_COLUMN]
 
-    monkeypatch.setitem(SAMPLE_FIELDS, "cloud_size", SampleField("cloud_size", 1, label_bits))
-    dataset = open_dataset(str(covered))
-    labels = dataset.index.column("label").to_numpy().astype(np.int64)
-    held = load_memory(dataset).batch(range(len(dataset)), 8, 0, 0)
-    assert held.cloud_size is not None and held.cloud_size.tolist() == labels.tolist()
-    for batch in ShardStream(dataset, num_points=8, batch_size=3, seed=1).loader():
-        assert batch.cloud_size.tolist() == labels[batch.index.numpy()].tolist()
+    with SAMPLE_FIELDS.replaced("cloud_size", SampleField("cloud_size", 1, label_bits)):
+        dataset = open_dataset(str(covered))
+        labels = dataset.index.column("label").to_numpy().astype(np.int64)
+        held = load_memory(dataset).batch(range(len(dataset)), 8, 0, 0)
+        assert held.cloud_size is not None and held.cloud_size.tolist() == labels.tolist()
+        for batch in ShardStream(dataset, num_points=8, batch_size=3, seed=1).loader():
+            assert batch.cloud_size.tolist() == labels[batch.index.numpy()].tolist()
 
 
 def test_register_field_refuses_a_name_that_cannot_be_one_and_a_second_reader() -> None:

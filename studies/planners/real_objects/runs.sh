@@ -29,10 +29,10 @@ recipe() {  # the osvp train arguments of a run, by name
       [ "${1##*-}" = init ] && init="--init $runs/scvp-nb-synth-4k/best.pt"
       all=""; [ "$n" = all ] || all="--max-objects $n"
       echo "${train_none[*]} --network scvp --target near_best --steps 1000 $all $init" ;;
-    # does refinement buy learning value? the one-shot recipe on POCO's and on no refiner's labels of the
-    # same objects and rotations (2 of 8), equal steps, the same validation objects
-    os-poco-r2) echo "--data $work/real-train-poco-r2-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 2000" ;;
-    os-none-r2) echo "--data $work/real-train-none-r2-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 2000" ;;
+    # does refinement buy learning value? the one-shot recipe (oneshot-mc-8k, shipped:oneshot) on POCO's
+    # labels of the same objects and rotations (real-train-poco: the paper's settings), equal steps, the
+    # same validation objects and seed
+    oneshot-poco-8k) echo "--data $work/real-train-poco-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 8000" ;;
     *) echo "unknown run $1" >&2; return 1 ;;
   esac
 }
