@@ -44,15 +44,18 @@ class Decoding:
     @property
     def spec(self) -> str:
         """The text that names it (``threshold=0.3``, ``tuned``, ``size``)."""
-        if self.name == "threshold" and self.value != PAPER_THRESHOLD:
-            return f"threshold={self.value:g}"
-        if self.name == "topk":
-            return f"topk={int(self.value or 0)}"
-        return self.name
+        return DECODING_REGISTRY[self.name].spec(self.name, self.value)
 
 
 class DecodingRule(Protocol):
-    """One decoding: the number its spec carries, and the views it takes."""
+    """One decoding: the number its spec carries, how it is written, and the views it takes."""
+
+    needs_tuned_threshold: bool
+    """Whether it reads the checkpoint's tuned threshold (a checkpoint without one cannot take it)."""
+
+    def spec(self, name: str, value: float | None) -> str:
+        """The text that names the decoding with this number (``threshold=0.3``, ``topk=4``, ``size``)."""
+        ...
 
     def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
         """The decoding's number (threshold, K) from its spec's ``=ARGUMENT`` (None: none was given)."""
@@ -86,8 +89,20 @@ def _no_value(text: str, argument: str | None) -> None:
         raise ValueError(f"decoding {text!r}: {name!r} takes no value; choose {', '.join(DECODING_REGISTRY.names())}")
 
 
+class _Named:
+    """A decoding written by its name alone."""
+
+    needs_tuned_threshold = False
+
+    def spec(self, name: str, value: float | None) -> str:
+        return name
+
+
 @register_decoding("threshold")
-class _Threshold:
+class _Threshold(_Named):
+    def spec(self, name: str, value: float | None) -> str:
+        return name if value in (None, PAPER_THRESHOLD) else f"{name}={value:g}"
+
     def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
         value = _number(argument, text) if argument is not None else PAPER_THRESHOLD
         if not 0.0 <= value <= 1.0:
@@ -102,6 +117,11 @@ class _Threshold:
 
 @register_decoding("tuned")
 class _Tuned(_Threshold):
+    needs_tuned_threshold = True
+
+    def spec(self, name: str, value: float | None) -> str:
+        return name
+
     def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
         _no_value(text, argument)
         if tuned_threshold is None:
@@ -110,7 +130,7 @@ class _Tuned(_Threshold):
 
 
 @register_decoding("size")
-class _Size:
+class _Size(_Named):
     def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
         _no_value(text, argument)
         return None
@@ -124,7 +144,10 @@ class _Size:
 
 
 @register_decoding("topk")
-class _TopK:
+class _TopK(_Named):
+    def spec(self, name: str, value: float | None) -> str:
+        return f"{name}={int(value or 0)}"
+
     def value(self, text: str, argument: str | None, tuned_threshold: float | None) -> float | None:
         if argument is None:
             raise ValueError("decoding 'topk' needs its K, e.g. topk=4")

@@ -24,7 +24,7 @@ import numpy.typing as npt
 import torch
 
 from osvp.checkpoint import Checkpoint, load_checkpoint
-from osvp.decoding import decodings, parse_decoding, select_views
+from osvp.decoding import DECODING_REGISTRY, parse_decoding, select_views
 from osvp.loss import is_next_view
 from schemas.planning import DecodingScorer, NextViewObservation, ScorerFactory
 from storage.resampling import resample_cloud
@@ -46,7 +46,9 @@ class CheckpointScorer(DecodingScorer):
         self.tuned_threshold = checkpoint.tuned_threshold
         self.default_decoding = checkpoint.decoding
         self.decodings: tuple[str, ...] = tuple(
-            name for name in decodings() if name != "tuned" or self.tuned_threshold is not None
+            name
+            for name, rule in DECODING_REGISTRY.items()
+            if not rule.needs_tuned_threshold or self.tuned_threshold is not None
         )
         """Decoding names this checkpoint accepts (``tuned`` only when it holds a tuned threshold)."""
         self.generation_config = checkpoint.generation_config
