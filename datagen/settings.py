@@ -1,7 +1,7 @@
 """`RunSettings`: where and how a job runs. Never hashed, never written into a dataset.
 
 This is the only module that reads datagen's environment variables (besides the CLI's options);
-`storage.location` reads the standard AWS ones (endpoint, region) where a store is opened.
+`storage.store.location` reads the standard AWS ones (endpoint, region) where a store is opened.
 """
 
 from __future__ import annotations

@@ -49,4 +49,4 @@ class DatasetInfo(BaseModel):
 
 
 PACK_BYTES = 512 * 1024**2
-"""About how large each tar file of a packed dataset is, by default (`storage.pack`, ``--pack-mb``)."""
+"""About how large each tar file of a packed dataset is, by default (`storage.dataset.pack`, ``--pack-mb``)."""

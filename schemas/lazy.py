@@ -1,5 +1,5 @@
 """A package's public names, imported when first used (PEP 562), so that importing one light submodule
-(``schemas.errors``, ``storage.problems``) does not import the whole package: a command that only
+(``schemas.errors``, ``storage.dataset.problems``) does not import the whole package: a command that only
 lists jobs starts in a fraction of a second instead of loading pyarrow, zarr and pydantic first."""
 
 from __future__ import annotations

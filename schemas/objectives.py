@@ -108,8 +108,8 @@ register_objective(
         ranks_ties=True,
         oracle_settings={"alpha": "alpha"},
         labeller="datagen.pipeline.objectives:cover_labeller",
-        judge="storage.label_judges:CoverJudge",
-        checker="datagen.inspection.label_check:cover_checker",
+        judge="storage.samples:CoverJudge",
+        checker="datagen.inspection.cover_check:cover_checker",
         ties_words=("minimum covers", "unique minimum cover"),
     )
 )
@@ -120,7 +120,7 @@ register_objective(
         fields=("label_budget",),
         oracle_settings={"budget": "label_budget"},
         labeller="datagen.pipeline.objectives:max_coverage_labeller",
-        judge="storage.label_judges:BudgetJudge",
+        judge="storage.samples:BudgetJudge",
         checker="datagen.inspection.coverage_check:budget_checker",
         text_names={"label_budget": "budget"},
     )
@@ -132,7 +132,7 @@ register_objective(
         fields=("label_tau",),
         oracle_settings={"tau": "label_tau"},
         labeller="datagen.pipeline.objectives:partial_cover_labeller",
-        judge="storage.label_judges:TauJudge",
+        judge="storage.samples:TauJudge",
         checker="datagen.inspection.coverage_check:tau_checker",
         text_names={"label_tau": "tau"},
     )

@@ -42,13 +42,13 @@ the config's ``label_cover_cap``; the index says how many there are and whether 
 Version 3 adds the next-best-view families' labels (docs/pipeline.md section 8.1-8.2): every view's
 gain counted over the visibility and over the coverage sets, with both denominators, and the
 planners' 32^3 occupancy grid, kept as each view's ray cells once per task; a case's grid is its
-views inserted in ascending order (`storage.occupancy.case_grid`).
+views inserted in ascending order (`storage.samples.case_grid`).
 
 Version 4 stores each sample's refined cloud (``points_keys``) in a seeded random order
 (`point_order`: a permutation of the sorted set from the stream of the dataset's seed, the task and
 the case), in inner chunks of a few thousand rows, so that any run of consecutive stored points is a
 uniform random subset of the cloud and a reader wanting N of them decodes one or two chunks instead
-of the whole cloud (`storage.resampling.cloud_positions`).
+of the whole cloud (`storage.samples.cloud_positions`).
 
 Every other key set of a sample or view, and a version-4 cloud once put back in `point_order`, is
 sorted lexicographically (x, y, z) and unique. Rows are ordered by (case size, case mask). Group

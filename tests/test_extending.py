@@ -81,7 +81,7 @@ def test_the_objective_example(run_example: Callable[[str], dict[str, object]]) 
 
 def test_the_sample_field_example(run_example: Callable[[str], dict[str, object]], tmp_path: Path) -> None:
     from storage import open_dataset
-    from storage.memory import load_memory
+    from storage.readers import load_memory
 
     run_example("sample field")
     fx.build_dataset(str(tmp_path / "ds"), finalise_index=True)

@@ -254,7 +254,7 @@ def s3_copy(server: Any, source: str, shards: int) -> str:
     """The first ``shards`` tasks of ``source`` uploaded to the server (files as they are), finalised."""
     import storage
     from storage import finalise, open_location
-    from storage.writer import COMMITS
+    from storage.dataset import COMMITS
 
     found = storage.open_dataset(source)
     chosen = sorted(set(found.index.column("shard").to_pylist()))[:shards]

@@ -2,10 +2,10 @@
 
 ``validate`` joins two checkers in one pass over the shards: `storage.validate` (structure, index,
 commit and failure records agreeing, every checked label covers its U; numpy only) and
-`datagen.inspection.label_check` (minimality and the lexicographic tie-break, with a solver) as
-its per-shard hook, so each shard is read once. Where both see the same damage, the line is printed
-once. Warnings (harmless leftovers) follow the problems and never fail the command. Plain
-functions; `datagen.cli.shards` registers them.
+`datagen.inspection.label_check` (each objective's checker: for ``cover`` minimality and the
+lexicographic tie-break, with a solver) as its per-shard hook, so each shard is read once. Where
+both see the same damage, the line is printed once. Warnings (harmless leftovers) follow the
+problems and never fail the command. Plain functions; `datagen.cli.shards` registers them.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from datagen.cli.common import UrlArgument, dataset_options, plural, progress_bar, say, user_errors
-from storage.problems import Mend, Problem, lines
+from storage.dataset import Mend, Problem, lines
 
 if TYPE_CHECKING:
     from datagen.inspection.label_check import LabelProblem
@@ -52,7 +52,7 @@ def validate(
     """
     from datagen.engine.parallel import run_each
     from datagen.inspection.validation import check_chunk, task_chunks
-    from storage.validation import check_dataset, plan_validation
+    from storage.checks import check_dataset, plan_validation
 
     with user_errors(url):
         options = dataset_options(url)
@@ -141,7 +141,14 @@ def _new_label_lines(storage_problems: list[Problem], labels: list[LabelProblem]
 
 def relabel(
     url: UrlArgument,
-    out: Annotated[str, typer.Option("--out", help="Where the new dataset goes (must not hold a dataset).")],
+    out: Annotated[
+        str,
+        typer.Option(
+            "--out",
+            help="Where the new dataset goes: an empty place, or the --out of a stopped relabel of the same "
+            "settings (finished, its committed tasks kept).",
+        ),
+    ],
     alpha: Annotated[
         int | None, typer.Option("--alpha", min=1, help="The new alpha (views a key needs to enter P_full).")
     ] = None,
@@ -203,6 +210,8 @@ def relabel(
             f"{summary.source_alpha}, tie-break {summary.source_tie_break})"
         )
         say(f"{summary.seconds:.1f} s, {summary.labels_per_second:.1f} labels/s")
+        if summary.kept:
+            say(f"kept {plural(summary.kept, 'task')} a stopped relabel into {summary.out} had committed")
         if summary.dropped_empty or summary.failed_cases:
             say(f"{summary.dropped_empty} empty labels dropped, {summary.failed_cases} cases not proven optimal")
         say(f"carried over {summary.failures} failure records")

@@ -17,7 +17,7 @@ from datagen.cli.common import dataset_options, lazy_help, progress_bar, say, us
 
 def layout_help() -> str:
     """``--layout``'s help, from the layout registry (imported only when help is shown)."""
-    from storage.export.registry import LAYOUTS
+    from storage.export import LAYOUTS
 
     return "Output layout: " + "; ".join(f"'{name}': {layout.summary}" for name, layout in LAYOUTS.items()) + "."
 

@@ -1,6 +1,6 @@
 """``datagen shards pack``: a finished dataset in a few large tar files with one manifest, for shipping.
 
-A plain function; `datagen.cli.shards` registers it. The work is `storage.pack.pack_dataset`; every
+A plain function; `datagen.cli.shards` registers it. The work is `storage.dataset.pack_dataset`; every
 refusal (an unfinished or older-layout dataset, a non-empty OUT) is one ``error:`` line.
 """
 
@@ -28,7 +28,7 @@ def pack(
     shard <task>.zarr.zip and index rows <task>.index.parquet: WebDataset shards) and one manifest; the
     packed dataset reads like the original (storage.open_dataset, the streaming reader, every shards
     command) and is read-only."""
-    from storage.pack import pack_dataset
+    from storage.dataset import pack_dataset
 
     with user_errors(url):
         options = dataset_options(url)

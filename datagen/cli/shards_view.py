@@ -55,7 +55,7 @@ def format_views(views: Sequence[int]) -> str:
 def view_strip(details: SampleDetails) -> str:
     """One character per view, in bit order: I input, L label, B both, a view of another minimum cover
     (version 2), . other."""
-    from storage.bits import mask_bits
+    from storage.samples import mask_bits
 
     support = mask_bits(details.ambiguity.support if details.ambiguity else 0, details.num_views).tolist()
     marks = []
@@ -70,7 +70,7 @@ def ambiguity_rows(details: SampleDetails) -> list[tuple[str, str]]:
     """``shards show`` lines on the label's minimum covers (none for a version-1 dataset)."""
     import numpy as np
 
-    from storage.bits import mask_bits
+    from storage.samples import mask_bits
 
     found = details.ambiguity
     if found is None:

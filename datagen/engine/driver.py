@@ -66,8 +66,7 @@ from storage import (
     sweep_temporaries,
     write_failure,
 )
-from storage.manifest import read_tasks, record_of
-from storage.writer import line_failure_id, retire_line_failures
+from storage.dataset import line_failure_id, read_tasks, record_of, retire_line_failures
 
 LEASE_SECONDS = 120.0
 RENEW_EVERY = 20.0

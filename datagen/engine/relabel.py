@@ -40,6 +40,7 @@ from storage import (
     ShardReader,
     StorageError,
     check_store,
+    committed_tasks,
     finalise,
     holds_dataset,
     init_dataset,
@@ -49,7 +50,7 @@ from storage import (
     write_failure,
     write_task,
 )
-from storage.manifest import task_records
+from storage.dataset import task_records
 
 TASK_METADATA = ("refiner", "weights_id", "device", "seed", "schema_version")
 """Per-task metadata carried over from the source shard (the config hash is the new one)."""
@@ -87,6 +88,8 @@ class RelabelSummary:
     failures: int
     """Failure records carried over from the source."""
     seconds: float
+    kept: int = 0
+    """Tasks a stopped relabel into the same ``out`` had already committed: kept, not relabelled again."""
 
     @property
     def labels_per_second(self) -> float:
@@ -125,7 +128,6 @@ def relabel_dataset(
     )
     target = open_location(out_url, storage_options)
     check_store(target)
-    _refuse_existing(target)
     new_info = DatasetInfo(
         schema_version=SCHEMA_VERSION,
         config=config,
@@ -134,24 +136,27 @@ def relabel_dataset(
         versions=_versions(),
         created=datetime.now(UTC).isoformat(timespec="seconds"),
     )
-    init_dataset(target, new_info)
+    kept = _resumed_tasks(target, new_info, out_url)
+    if not holds_dataset(target):
+        init_dataset(target, new_info)
     failures = read_failures(source)
     for failure in sorted(failures, key=lambda f: f.task_id):
         write_failure(target, failure)
     records = task_records(source)
+    todo = [record for record in records.records if record.task_id not in kept]
     samples = dropped = failed = 0
     positions = np.asarray(info.view_positions)
     hashes = (new_info.config_hash, info.config_hash)
     calls = (
         (url, out_url, storage_options, record, records.spans.get(record.shard), config, *hashes, positions)
-        for record in records.records
+        for record in todo
     )
     for done, outcome in enumerate(run_each(relabel_and_commit, calls, workers, address), start=1):
         samples += outcome.samples
         dropped += outcome.dropped_empty
         failed += outcome.failed_cases
         if progress:
-            progress(RelabelProgress(done, len(records.records), samples, outcome.task_id))
+            progress(RelabelProgress(len(kept) + done, len(records.records), samples, outcome.task_id))
     finalise(target)
     return RelabelSummary(
         source=url,
@@ -170,6 +175,7 @@ def relabel_dataset(
         failed_cases=failed,
         failures=len(failures),
         seconds=time.perf_counter() - started,
+        kept=len(kept),
     )
 
 
@@ -316,9 +322,18 @@ def _config_hash(config: GenerationConfig) -> str:
         ) from None
 
 
-def _refuse_existing(target: Location) -> None:
-    if holds_dataset(target):
-        raise OutputError(f"{target.url}: already holds a dataset; relabel writes a new one, give an empty --out")
+def _resumed_tasks(target: Location, info: DatasetInfo, out_url: str) -> set[str]:
+    """The tasks a stopped relabel of the same source and settings already committed to ``target``
+    (none for an empty one); another dataset there is refused, never mixed with."""
+    if not holds_dataset(target):
+        return set()
+    there = read_info(target)
+    if there.config_hash != info.config_hash:
+        raise OutputError(
+            f"{out_url}: already holds another dataset (config {there.config_hash[:12]}, this relabel makes "
+            f"{info.config_hash[:12]}); give an empty --out, or the same one to finish a stopped relabel"
+        )
+    return {record.task_id for record in committed_tasks(target)}
 
 
 def _versions() -> dict[str, str]:

@@ -3,7 +3,7 @@
 The damaged tasks are those `storage.validate` names (a shard with a lost or truncated chunk file,
 an unreadable fragment or commit record, a commit record lost from under the finalised index) plus
 the tasks the ledger has done that have no commit record left. Their records are withdrawn
-(`storage.repair.withdraw`: readers then serve the sound rest, nothing half written), the ledger
+(`storage.checks.withdraw`: readers then serve the sound rest, nothing half written), the ledger
 makes exactly them pending again, and the job's own driver (`run_job`) re-runs them with the job's
 stored config and objects: by determinism the same samples as before the damage. A dataset whose
 only problem is its merged index just gets it finalised again; a sound one is left untouched.
@@ -35,8 +35,8 @@ from storage import (
     read_info,
     validate_dataset,
 )
-from storage.problems import Problem
-from storage.repair import Findings, sort_problems, withdraw
+from storage.checks import Findings, sort_problems, withdraw
+from storage.dataset import Problem
 
 LOST_COMMIT = "commit record missing although the ledger has the task done"
 

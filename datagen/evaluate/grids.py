@@ -3,7 +3,7 @@
 The grid is the one the generator stores for a case (docs/pipeline.md section 8.2): every view's
 rays are walked once per scene through the task's 32^3 grid (`datagen.pipeline.occupancy`), and a
 case's grid is its views inserted one after another with OctoMap's clamped updates
-(`storage.occupancy`). A next-best-view planner inserts the views in the order it visits them; a
+(`storage.samples.occupancy_grid`). A next-best-view planner inserts the views in the order it visits them; a
 one-shot grid planner sees the grid of its initial view, as a training sample of that case holds.
 """
 
@@ -17,7 +17,7 @@ import numpy.typing as npt
 from datagen.evaluate.scene import Scene
 from datagen.evaluate.situation import Situation
 from datagen.pipeline.occupancy import ViewGrids, view_grids
-from storage.occupancy import GRID_CELLS, GRID_SIDE, insert_view, occupancy
+from storage.samples import GRID_CELLS, GRID_SIDE, insert_view, occupancy
 
 
 class SceneGrids:

@@ -18,7 +18,7 @@ import highspy
 import numpy as np
 import numpy.typing as npt
 
-from datagen.inspection import label_check as cover_check
+from datagen.inspection import label_check
 from datagen.pipeline import setcover
 from schemas.config import GenerationConfig
 
@@ -50,7 +50,7 @@ class VisibilityRows:
         views = np.array(candidates, dtype=np.uint64)
         masks: list[int] = []
         values: list[npt.NDArray[np.int64]] = []
-        for chunk in cover_check._combination_chunks(len(candidates), size):
+        for chunk in label_check.combination_chunks(len(candidates), size):
             sets = np.bitwise_or.reduce(np.uint64(1) << views[chunk], axis=1)
             sees = ((self.distinct[None, :] & (sets[:, None] | np.uint64(case))) != 0).astype(np.int64)
             values.append(sees @ self.counts)
@@ -84,29 +84,29 @@ class VisibilityRows:
 
     def judge(self, case: int, label: int) -> Iterator[tuple[str, str]]:
         """(kind, text) for each rule the label breaks; nothing when it is the expected label."""
-        text = cover_check.views_text
+        text = label_check.views_text
         try:
             size, expected = self.expected(case)
-        except cover_check.SolverFailure as exc:
-            yield cover_check.UNSOLVED, f"label {text(label)} could not be checked ({exc})"
+        except label_check.SolverFailure as exc:
+            yield label_check.UNSOLVED, f"label {text(label)} could not be checked ({exc})"
             return
         if label == expected:
             return
         seen, best = self.seen(case | label), self.seen(case | expected)
         if seen < best:
-            yield cover_check.NOT_MINIMUM, f"label {text(label)} sees {seen} keys, {text(expected)} sees {best}"
+            yield label_check.NOT_MINIMUM, f"label {text(label)} sees {seen} keys, {text(expected)} sees {best}"
         elif label.bit_count() > size:
             yield (
-                cover_check.NOT_MINIMUM,
+                label_check.NOT_MINIMUM,
                 f"label {text(label)} is not the fewest views (k={label.bit_count()} > {size})",
             )
         else:
-            yield cover_check.NOT_LEXICOGRAPHIC, f"label {text(label)} is not the lexicographic choice {text(expected)}"
+            yield label_check.NOT_LEXICOGRAPHIC, f"label {text(label)} is not the lexicographic choice {text(expected)}"
 
-    def judge_covers(self, case: int, label: int, stored: cover_check.Ambiguity) -> Iterator[tuple[str, str]]:
+    def judge_covers(self, case: int, label: int, stored: label_check.Ambiguity) -> Iterator[tuple[str, str]]:
         """(kind, text) where the stored ties, their count or support differ from an enumeration of every
         view set of the label's size (the label already judged the answer)."""
-        text = cover_check.views_text
+        text = label_check.views_text
         found = self._values(case, label.bit_count())
         if found is None:
             return  # too many combinations to list every tie independently; `storage.validate` checked them
@@ -116,13 +116,13 @@ class VisibilityRows:
         for tie in ties:
             support |= tie
         if stored.exact and stored.count != len(ties):
-            yield cover_check.COVERS_WRONG, f"the index counts {stored.count} ties, there are {len(ties)}"
+            yield label_check.COVERS_WRONG, f"the index counts {stored.count} ties, there are {len(ties)}"
         elif not stored.exact and stored.count > len(ties):
-            yield cover_check.COVERS_WRONG, f"the index says at least {stored.count} ties, there are {len(ties)}"
+            yield label_check.COVERS_WRONG, f"the index says at least {stored.count} ties, there are {len(ties)}"
         if stored.exact and set(stored.listed) != set(ties):
-            yield cover_check.COVERS_WRONG, f"the {len(stored.listed)} listed ties are not the {len(ties)} that exist"
+            yield label_check.COVERS_WRONG, f"the {len(stored.listed)} listed ties are not the {len(ties)} that exist"
         if stored.support != support:
-            yield cover_check.COVERS_WRONG, f"support {text(stored.support)}, the ties use {text(support)}"
+            yield label_check.COVERS_WRONG, f"support {text(stored.support)}, the ties use {text(support)}"
 
 
 def _highs_max_coverage(rows: VisibilityRows, case: int, size: int, fixed: dict[int, int]) -> int:
@@ -156,15 +156,15 @@ def _highs_max_coverage(rows: VisibilityRows, case: int, size: int, fixed: dict[
     lp.a_matrix_.value_ = np.array(values)
     lp.a_matrix_.num_col_, lp.a_matrix_.num_row_ = m + n, n + 1
     lp.integrality_ = [highspy.HighsVarType.kInteger] * m + [highspy.HighsVarType.kContinuous] * n
-    with cover_check.HIGHS_LOCK:  # HiGHS's scheduler is one per process
-        solver = setcover.highs_solver(1, cover_check.TIME_LIMIT)
+    with label_check.HIGHS_LOCK:  # HiGHS's scheduler is one per process
+        solver = setcover.highs_solver(1, label_check.TIME_LIMIT)
         solver.passModel(lp)
         solver.run()
         status = solver.getModelStatus()
         if status == highspy.HighsModelStatus.kInfeasible:
             return -1
         if status != highspy.HighsModelStatus.kOptimal:
-            raise cover_check.SolverFailure(f"HiGHS: {solver.modelStatusToString(status)}")
+            raise label_check.SolverFailure(f"HiGHS: {solver.modelStatusToString(status)}")
         value = solver.getInfo().objective_function_value
     return rows.seen(case) + round(value)
 
@@ -194,17 +194,17 @@ class TauRows(VisibilityRows):
         return size, self._first(case, size, self._best(case, size))
 
 
-def budget_checker(stored: cover_check.StoredSets) -> BudgetRows:
+def budget_checker(stored: label_check.StoredSets) -> BudgetRows:
     """The ``max_coverage`` objective's checker (the reference: every key some view sees)."""
-    return BudgetRows(cover_check.full_masks(stored.keys, stored.offsets, 1), _config(stored), stored.search_limit)
+    return BudgetRows(label_check.full_masks(stored.keys, stored.offsets, 1), _config(stored), stored.search_limit)
 
 
-def tau_checker(stored: cover_check.StoredSets) -> TauRows:
+def tau_checker(stored: label_check.StoredSets) -> TauRows:
     """The ``partial_cover`` objective's checker (the reference: every key some view sees)."""
-    return TauRows(cover_check.full_masks(stored.keys, stored.offsets, 1), _config(stored), stored.search_limit)
+    return TauRows(label_check.full_masks(stored.keys, stored.offsets, 1), _config(stored), stored.search_limit)
 
 
-def _config(stored: cover_check.StoredSets) -> GenerationConfig:
+def _config(stored: label_check.StoredSets) -> GenerationConfig:
     if stored.config is None:
         raise ValueError("a visibility objective's labels are checked against the dataset's config")
     return stored.config

@@ -17,7 +17,7 @@ import pyarrow.compute as pc
 
 from datagen.errors import InvalidArgument
 from storage import Dataset, LabelAmbiguity, NextView, stored_bytes
-from storage.bits import mask_bits
+from storage.samples import mask_bits
 
 COMMITTED = "committed"
 FAILED = "failed"

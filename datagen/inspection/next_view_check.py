@@ -24,7 +24,7 @@ from schemas.shard import (
     keys_array,
     offsets_array,
 )
-from storage.gains import best_views
+from storage.samples import best_views
 from storage.shards import ShardReader
 
 GRID = "grid"

@@ -11,9 +11,9 @@ from typing import Any
 from datagen.inspection.label_check import LabelProblem, ShardLabelCheck
 from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
-from storage.location import open_location
-from storage.problems import Problem
-from storage.validation import ValidationPlan, check_tasks
+from storage.checks import ValidationPlan, check_tasks
+from storage.dataset import Problem
+from storage.store import open_location
 
 TASK_CHUNK = 256
 """Tasks a worker checks at a time (its index rows and findings travel as one result)."""

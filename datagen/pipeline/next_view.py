@@ -6,7 +6,7 @@ A view's gain is what it would add to what the case's views already have, counte
   sees that no view of S sees; normalised by every key any view sees;
 - over the coverage sets C_i: the keys of P_full in C_i and in no C_s of S; normalised by |P_full|.
 
-Both are counted from each key's view mask (`storage.gains.MaskCounts`, shared with
+Both are counted from each key's view mask (`storage.samples.MaskCounts`, shared with
 `storage.validate`). The best
 next view (NBVNet's class) is the view outside S with the largest visibility gain, the lowest index
 among equals, as the authors' first-maximum loop picks it.
@@ -22,7 +22,7 @@ import numpy.typing as npt
 
 from datagen.pipeline.coverage import view_masks
 from datagen.pipeline.setcover import MaskArray
-from storage.gains import GainArray, MaskCounts, best_views
+from storage.samples import GainArray, MaskCounts, best_views
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ side of 17/16 of the largest distance from the centre to a P_gt point, its floor
 keys it sees (V_i); each point's ray from the view's camera centre ends in one cell (a hit) and
 crosses others (misses, minus that view's hits, as OctoMap discretises one insertion). The walk is an
 exact voxel traversal (Amanatides and Woo), all rays of all views advanced together in numpy.
-`storage.occupancy` turns a case's views into its log-odds grid.
+`storage.samples.occupancy_grid` turns a case's views into its log-odds grid.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from datagen.pipeline.keys import key_centres, unpack_keys
-from storage.occupancy import GRID_CELLS, GRID_SIDE, pack_cells
+from storage.samples import GRID_CELLS, GRID_SIDE, pack_cells
 
 RADIUS_MARGIN = 17.0 / 16.0
 """MA-SCVP's grid half-side over the object's radius."""
@@ -38,7 +38,7 @@ class GridFrame:
 
 @dataclass(frozen=True)
 class ViewGrids:
-    """Every view's ray cells in the task's grid, bit-packed (`storage.occupancy.pack_cells`)."""
+    """Every view's ray cells in the task's grid, bit-packed (`storage.samples.pack_cells`)."""
 
     frame: GridFrame
     hits: npt.NDArray[np.uint8]

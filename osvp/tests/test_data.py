@@ -14,7 +14,7 @@ from osvp.data import DataError, SampleBank, require_covers, split_rows, trainin
 from osvp.train import TrainOptions, run_rows
 
 import storage
-from storage.reader import mask_to_bools
+from storage.readers import mask_to_bools
 
 
 @pytest.fixture(scope="module")

@@ -15,6 +15,7 @@ from storage.export.options import EMPTY_LABEL, NO_NEXT_VIEW, NO_POINTS, PROVENA
 from storage.export.registry import LAYOUTS, check_layout, layout_named, register_layout
 from storage.export.run import export
 from storage.export.streams import sample_rng
+from storage.export.text import cpp_text
 
 __all__ = [
     "EMPTY_LABEL",
@@ -27,6 +28,7 @@ __all__ = [
     "Export",
     "Layout",
     "check_layout",
+    "cpp_text",
     "export",
     "export_air",
     "layout_named",

@@ -24,7 +24,7 @@ from storage.export.options import EMPTY_LABEL, NO_POINTS
 from storage.export.publish import write_text
 from storage.export.streams import sample_rng
 from storage.export.text import ids_text, state_text
-from storage.reader import Dataset
+from storage.readers.reader import Dataset, Sample
 
 AUTHORS_CODE = "psc0628/AIR-OSVP @ c233bbf, poco_pointr/pointrVP/{COSC_Dataset.py,train.py}"
 
@@ -38,6 +38,7 @@ class AirLayout(Layout):
     name_word = "cloud"
     needs_points = True
     needs_next_view = False
+    fields = ("points", "view_state", "label")
     skip_reasons: ClassVar[Mapping[str, str]] = {
         EMPTY_LABEL: "no view needed: their recall divides by the label size, one such sample makes it NaN and "
         "no best checkpoint is saved; their generator writes none",
@@ -71,20 +72,17 @@ class _AirWriter(Writer):
         self.num_points = int(run.options.num_points or 0)
         self.resampled = 0
 
-    def write(self, place: Place) -> None:
-        dataset, target = self.run.dataset, self.run.target
-        view_state, label = dataset.masks(place.index)
-        keys = dataset.keys(place.index, "points")
-        replace = keys.shape[0] < self.num_points
+    def write(self, place: Place, sample: Sample) -> None:
+        target, whole = self.run.target, sample["points"]
+        replace = whole.shape[0] < self.num_points
         self.resampled += replace
         chosen = sample_rng(self.run.options.seed, place.sample_id).choice(
-            keys.shape[0], size=self.num_points, replace=replace
+            whole.shape[0], size=self.num_points, replace=replace
         )
-        points = dataset.centres(keys[chosen])
-        cloud = "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in points.tolist())
+        cloud = "".join(f"{x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in whole[chosen].tolist())
         write_text(place.folder / f"cloud_{place.case}.txt", cloud, target)
-        write_text(place.folder / f"state_{place.case}.txt", state_text(view_state), target)
-        write_text(place.folder / f"ids_{place.case}.txt", ids_text(label), target)
+        write_text(place.folder / f"state_{place.case}.txt", state_text(sample["view_state"]), target)
+        write_text(place.folder / f"ids_{place.case}.txt", ids_text(sample["label"]), target)
 
     def finish(self) -> None:
         """Nothing per split: their loader lists the folders."""

@@ -20,7 +20,7 @@ import numpy.typing as npt
 from storage.export.base import Place, Run
 from storage.export.options import SPLITS
 from storage.export.publish import make_folder, write_text
-from storage.location import StorageError
+from storage.store.location import StorageError
 
 ARRAY_ROWS = "array_rows.csv"
 PENDING = ".pending"

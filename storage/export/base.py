@@ -12,8 +12,8 @@ from typing import Any, ClassVar
 
 from storage.export.checks import check_common, check_points, check_views
 from storage.export.options import EMPTY_LABEL, NO_POINTS, Options
-from storage.location import StorageError
-from storage.reader import Dataset
+from storage.readers.reader import Dataset, Sample
+from storage.store.location import StorageError
 
 Progress = Callable[[int, int], None]
 """Called with (samples done, samples in the dataset) after each sample."""
@@ -82,8 +82,9 @@ class Writer(ABC):
     """Writes one layout's files for one export, sample by sample, then its per-split files."""
 
     @abstractmethod
-    def write(self, place: Place) -> None:
-        """Write the sample's files (its folder exists)."""
+    def write(self, place: Place, sample: Sample) -> None:
+        """Write the sample's files (its folder exists): ``sample`` holds the layout's `Layout.fields`,
+        read through storage's field registry (`storage.readers.Dataset.sample`)."""
 
     @abstractmethod
     def finish(self) -> None:
@@ -126,6 +127,10 @@ class Layout(ABC):
     """Whether it reads the schema-version-3 next-view labels and grids."""
     split_use: ClassVar[str]
     """How their trainer uses train_split and test_split (the provenance's split line ends with it)."""
+    fields: ClassVar[tuple[str, ...]] = ()
+    """What its writer reads of each sample: registered sample fields (`storage.samples.SAMPLE_FIELDS`)
+    and ``"observed"``, as `storage.readers.Dataset.sample` gives them (view sets as bools per view,
+    clouds whole in metres); none: the sample's id alone."""
 
     def resolve(self, options: Options) -> Options:
         """The options with this layout's defaults; refuses a value it cannot use."""

@@ -8,8 +8,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from storage.export.options import AUTHORS_VIEWS, ROTATION_NAMES, Options
-from storage.location import StorageError
-from storage.reader import Dataset
+from storage.readers.reader import Dataset
+from storage.store.location import StorageError
 
 
 def check_common(options: Options) -> None:

@@ -8,8 +8,8 @@ import pyarrow as pa
 
 from schemas.dataset import CARD_FILE
 from storage.export.options import AUTHORS_ROTATIONS, ROOT_FILES
-from storage.location import StorageError
-from storage.reader import Dataset
+from storage.readers.reader import Dataset
+from storage.store.location import StorageError
 
 
 def object_folders(dataset: Dataset, word: str | None, reserved: tuple[str, ...]) -> dict[str, str]:

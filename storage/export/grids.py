@@ -13,7 +13,9 @@ import numpy as np
 import numpy.typing as npt
 
 from schemas.shard import GRID_HITS, GRID_MISSES
-from storage.occupancy import (
+from storage.readers.reader import Dataset
+from storage.samples.bits import bools_mask
+from storage.samples.occupancy_grid import (
     GRID_CELLS,
     GRID_SIDE,
     HIT_LOG_ODDS,
@@ -22,7 +24,6 @@ from storage.occupancy import (
     MISS_LOG_ODDS,
     case_probabilities,
 )
-from storage.reader import Dataset
 
 
 class Grids:
@@ -31,10 +32,11 @@ class Grids:
     def __init__(self, dataset: Dataset) -> None:
         self.dataset = dataset
 
-    def of(self, i: int, case: int) -> npt.NDArray[np.float64]:
-        """(GRID_CELLS,) probabilities of sample i, whose view state is ``case``, x-major."""
+    def of(self, i: int, view_state: npt.NDArray[np.bool_]) -> npt.NDArray[np.float64]:
+        """(GRID_CELLS,) probabilities of sample i, whose view state is ``view_state`` (a bool per
+        view), x-major: from its task's ray cells in double (the ``grid`` field's are float32)."""
         shard = self.dataset.shard(self.dataset.samples.shard(i))
-        return case_probabilities(shard.array(GRID_HITS), shard.array(GRID_MISSES), case)
+        return case_probabilities(shard.array(GRID_HITS), shard.array(GRID_MISSES), bools_mask(view_state))
 
 
 def grid_line(name: str) -> str:

@@ -22,8 +22,8 @@ from storage.export.grids import Grids, grid_facts, grid_line
 from storage.export.options import AUTHORS_VIEWS, EMPTY_LABEL, TEST, TRAIN
 from storage.export.publish import write_text
 from storage.export.text import bits32, cpp_text, ids_text, state_text
-from storage.occupancy import GRID_CELLS
-from storage.reader import Dataset
+from storage.readers.reader import Dataset, Sample
+from storage.samples.occupancy_grid import GRID_CELLS
 
 AUTHORS_CODE = (
     "psc0628/MA-SCVP @ 586509a, Dataset_generator/main.cpp (MASCVP_LongTailSample), "
@@ -47,6 +47,7 @@ class MascvpLayout(Layout):
         EMPTY_LABEL: "no view needed: both trainers' recall divides by the label size, and SC-Net's check after "
         "every epoch stops with ZeroDivisionError on one such sample; their generator writes none",
     }
+    fields = ("view_state", "label")
     split_use = (
         "train/ holds the train_split objects' arrays, test/ the test_split ones; their ma_scvp train.py reads "
         "one set (config.GRID_PATH) and checks accuracy on a random 80% of it (seed 42) that it also trains "
@@ -73,8 +74,8 @@ class _MascvpWriter(Writer):
         self.grids = Grids(run.dataset)
         self.arrays = SplitArrays(run, ARRAYS)
 
-    def write(self, place: Place) -> None:
-        view_state, label = self.run.dataset.masks(place.index)
+    def write(self, place: Place, sample: Sample) -> None:
+        view_state, label = sample["view_state"], sample["label"]
         grid = self.grids.of(place.index, view_state)
         target, c = self.run.target, place.case
         write_text(place.folder / f"grid_{c}.txt", cpp_text(grid), target)

@@ -20,8 +20,8 @@ from storage.export.grids import Grids, grid_facts, grid_line
 from storage.export.options import NO_NEXT_VIEW, TEST, TRAIN
 from storage.export.publish import write_text
 from storage.export.text import cpp_text
-from storage.occupancy import GRID_CELLS
-from storage.reader import Dataset
+from storage.readers.reader import Dataset, Sample
+from storage.samples.occupancy_grid import GRID_CELLS
 
 AUTHORS_CODE = (
     "psc0628/MA-SCVP @ 586509a, Dataset_generator/main.cpp (NBVNET_LongTailSample), "
@@ -44,6 +44,7 @@ class NbvnetLayout(Layout):
         NO_NEXT_VIEW: "the case holds every view, so there is no class to learn; their generator would write -1, "
         "which their cross-entropy cannot take",
     }
+    fields = ("view_state", "best_view")
     split_use = (
         "train/ holds the train_split objects' arrays, test/ the test_split ones; their train.py reads "
         "./grids.npy and ./labels.npy, trains on all of them and reports a validation loss on a random 20% "
@@ -72,11 +73,10 @@ class _NbvnetWriter(Writer):
         ties = run.dataset.values("best_view_ties", keep=False)
         self._tied = ties > 1
 
-    def write(self, place: Place) -> None:
-        dataset, target, c = self.run.dataset, self.run.target, place.case
-        view_state, _ = dataset.masks(place.index)
-        best = dataset.next_view(place.index).best_view
-        grid = self.grids.of(place.index, view_state)
+    def write(self, place: Place, sample: Sample) -> None:
+        target, c = self.run.target, place.case
+        best = int(sample["best_view"])
+        grid = self.grids.of(place.index, sample["view_state"])
         write_text(place.folder / f"grid_{c}.txt", cpp_text(grid), target)
         write_text(place.folder / f"id_{c}.txt", f"{best}\n", target)
         self.arrays.put(place, {"grids": grid.astype(np.float32), "labels": best})

@@ -24,7 +24,7 @@ from storage.export.options import AUTHORS_VIEWS, NO_POINTS
 from storage.export.publish import write_text
 from storage.export.streams import draw, sample_rng, task_rng
 from storage.export.text import bits32, cpp_text, state_text
-from storage.reader import Dataset
+from storage.readers.reader import Dataset, Sample
 
 AUTHORS_CODE = (
     "psc0628/MA-SCVP @ 586509a, Dataset_generator/main.cpp (PCNBV_LongTailSample), "
@@ -57,6 +57,7 @@ class PcnbvLayout(Layout):
     skip_reasons: ClassVar[Mapping[str, str]] = {
         NO_POINTS: "the case's views saw nothing, so there is no cloud to draw from"
     }
+    fields = ("observed", "view_state")
     split_use = (
         "their train.py trains on the dataset/*_train.pt tensors (train_split objects) and validates on the "
         "dataset/*_test.pt ones (test_split objects), never trained on"
@@ -87,14 +88,13 @@ class _PcnbvWriter(Writer):
         self.shards = run.dataset.column("shard").to_pylist()
         self._gt: tuple[str, npt.NDArray[np.float32]] | None = None
 
-    def write(self, place: Place) -> None:
+    def write(self, place: Place, sample: Sample) -> None:
         dataset, target, c, seed = self.run.dataset, self.run.target, place.case, self.run.options.seed
-        view_state, _ = dataset.masks(place.index)
-        keys = dataset.keys(place.index, "observed")
-        chosen, replaced = draw(sample_rng(seed, place.sample_id), keys.shape[0], self.points)
+        view_state, observed = sample["view_state"], sample["observed"]
+        chosen, replaced = draw(sample_rng(seed, place.sample_id), observed.shape[0], self.points)
         self.resampled += replaced
-        cloud = dataset.centres(keys[chosen])
-        next_view = dataset.next_view(place.index)
+        cloud = observed[chosen]
+        next_view = dataset.next_view(place.index)  # the raw gains and their denominator: the task's arrays
         score = next_view.view_gains.astype(np.float64) / next_view.visible_size
         write_text(place.folder / f"cloud_{c}.txt", cpp_text(cloud, columns=3), target)
         write_text(place.folder / f"state_{c}.txt", state_text(view_state), target)

@@ -8,7 +8,7 @@ from typing import Any
 
 from storage.export.base import Layout
 from storage.export.options import AUTHORS_ROTATIONS, PROVENANCE_JSON
-from storage.reader import Dataset
+from storage.readers.reader import Dataset
 
 
 def dataset_facts(dataset: Dataset) -> tuple[str, dict[str, Any]]:

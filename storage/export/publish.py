@@ -9,7 +9,7 @@ import os
 import uuid
 from pathlib import Path
 
-from storage.location import StorageError
+from storage.store.location import StorageError
 
 
 def make_staging(target: Path) -> Path:

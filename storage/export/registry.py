@@ -12,7 +12,7 @@ from storage.export.base import Layout
 from storage.export.mascvp import MASCVP
 from storage.export.nbvnet import NBVNET
 from storage.export.pcnbv import PCNBV
-from storage.location import StorageError
+from storage.store.location import StorageError
 
 LAYOUTS: Registry[Layout] = Registry(
     "export layout", "datagen.export_layouts", error=StorageError, check=lambda entry: isinstance(entry, Layout)

@@ -37,9 +37,9 @@ from storage.export.options import (
 from storage.export.provenance import dataset_facts, frame_facts, markdown, rotation_facts, view_facts
 from storage.export.publish import make_folder, make_staging, publish, write_text
 from storage.export.registry import layout_named
-from storage.location import StorageError
-from storage.reader import Dataset, open_dataset
-from storage.splits import held_out_objects
+from storage.readers.reader import Dataset, open_dataset
+from storage.samples.splits import held_out_objects
+from storage.store.location import StorageError
 
 
 def export(
@@ -85,7 +85,7 @@ def export(
     staging = make_staging(target)
     try:
         writer = chosen.start(Run(dataset, staging, target, options, plan.sizes()))
-        _write_samples(dataset, plan, writer, folders, rotations, staging, target, progress)
+        _write_samples(dataset, plan, writer, chosen.fields, folders, rotations, staging, target, progress)
         writer.finish()
         provenance = _provenance(chosen, dataset, options, plan, rotations, writer.lines(), writer.facts())
         _write_text_files(staging, target, chosen, plan, provenance)
@@ -158,6 +158,7 @@ def _write_samples(
     dataset: Dataset,
     plan: _Plan,
     writer: Writer,
+    fields: tuple[str, ...],
     folders: dict[str, str],
     rotations: dict[int, str],
     staging: Path,
@@ -165,7 +166,8 @@ def _write_samples(
     progress: Progress | None,
 ) -> None:
     """Every sample in shard order (shards sorted by path, rows in index order): the written ones get
-    their place, every one counts for the progress. Sample ids are read a shard's rows at a time."""
+    their place and their ``fields`` (`Dataset.sample`), every one counts for the progress. Sample ids
+    are read a shard's rows at a time."""
     sample_id_column = dataset.samples.column("sample_id", keep=False)
     rotation_of = dataset.values("rotation", keep=False)
     rows = dataset.values("row", keep=False)
@@ -184,7 +186,8 @@ def _write_samples(
                 if folder not in made:
                     make_folder(folder, target)
                     made.add(folder)
-                writer.write(Place(i, sample_ids[i], folder, int(rows[i]), side, positions[side]))
+                place = Place(i, sample_ids[i], folder, int(rows[i]), side, positions[side])
+                writer.write(place, dataset.sample(i, fields))
                 positions[side] += 1
             if progress is not None:
                 progress(done, len(dataset))

@@ -16,7 +16,7 @@ def _digest(name: str) -> int:
 
 def sample_rng(seed: int, sample_id: str) -> np.random.Generator:
     """The stream that draws one sample's cloud: fixed by the seed and the sample id alone (the export's
-    own, part of its documented format: not the (seed, epoch, index) streams of `storage.resampling`,
+    own, part of its documented format: not the (seed, epoch, index) streams of `storage.samples.resampling`,
     which depend on a dataset's order)."""
     return np.random.default_rng(np.random.SeedSequence([seed, _digest(sample_id)]))
 

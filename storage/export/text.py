@@ -7,8 +7,10 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from storage.bits import mask_bits
 from storage.export.options import AUTHORS_VIEWS
+
+Views = npt.NDArray[np.bool_]
+"""A view set as a sample gives it: one bool per view (`storage.readers.Dataset.sample`)."""
 
 
 def cpp_text(values: npt.ArrayLike, columns: int = 1) -> str:
@@ -24,16 +26,24 @@ def cpp_text(values: npt.ArrayLike, columns: int = 1) -> str:
     return "".join(" ".join(row) + "\n" for row in rows.tolist()) if columns > 1 else "\n".join(rows[:, 0]) + "\n"
 
 
-def state_text(view_state: int) -> str:
+def state_text(view_state: Views) -> str:
     """The 32 lines 0/1 of a view state (line v: view v is in the case)."""
-    return "".join(f"{bit}\n" for bit in mask_bits(view_state, AUTHORS_VIEWS).astype(int).tolist())
+    return "".join(f"{bit}\n" for bit in _authors_views(view_state).astype(int).tolist())
 
 
-def ids_text(label: int) -> str:
+def ids_text(label: Views) -> str:
     """A label's view ids, one per line, ascending."""
-    return "".join(f"{v}\n" for v in np.flatnonzero(mask_bits(label, AUTHORS_VIEWS)).tolist())
+    return "".join(f"{v}\n" for v in np.flatnonzero(_authors_views(label)).tolist())
 
 
-def bits32(mask: int) -> npt.NDArray[np.float32]:
-    """The 32 bits of a mask as float32 0/1 (a state or multi-hot label row)."""
-    return mask_bits(mask, AUTHORS_VIEWS).astype(np.float32)
+def bits32(views: Views) -> npt.NDArray[np.float32]:
+    """The 32 views of a view set as float32 0/1 (a state or multi-hot label row)."""
+    return _authors_views(views).astype(np.float32)
+
+
+def _authors_views(views: Views) -> Views:
+    """One bool for each of the authors' 32 views (`storage.export.checks.check_views` refuses others)."""
+    found = np.asarray(views, dtype=bool).reshape(-1)
+    if found.size != AUTHORS_VIEWS:
+        raise ValueError(f"a view set of {found.size} views; the authors' layouts have {AUTHORS_VIEWS}")
+    return found

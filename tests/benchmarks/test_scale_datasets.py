@@ -16,7 +16,7 @@ from support import storage as fx
 from benchmarks.scale import datasets
 from benchmarks.scale.probe import PROBES
 from storage import open_dataset, validate
-from storage.pack import pack_dataset
+from storage.dataset import pack_dataset
 
 
 @pytest.fixture(scope="module")

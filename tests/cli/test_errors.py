@@ -52,7 +52,7 @@ INTERNAL = {
 """Exception classes that are not `DatagenError`s, and why no user ever sees them."""
 
 EXPECTED = {
-    ("storage.location", "StorageError"),
+    ("storage.store.location", "StorageError"),
     ("jobs.ledger", "LedgerError"),
     ("datagen.errors", "ConfigError"),
     ("datagen.errors", "ObjectsFileError"),

@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 from datagen.cli.main import app
 from datagen.inspection.card import mesh_sources
 from storage import open_dataset
-from storage.visibility import key_view_masks
+from storage.samples import key_view_masks
 
 
 @pytest.fixture

@@ -35,7 +35,8 @@ from typer.testing import CliRunner
 
 from datagen.cli.main import app
 from datagen.inspection import label_check
-from datagen.inspection.label_check import TaskRows, expected_label, lexicographic_rank, undominated, views_text
+from datagen.inspection.cover_check import TaskRows, expected_label, lexicographic_rank
+from datagen.inspection.label_check import views_text
 from datagen.pipeline.coverage import coverage_table
 from datagen.pipeline.keys import pack_keys
 from datagen.pipeline.task import sample_id
@@ -43,13 +44,11 @@ from schemas.dataset import DatasetInfo
 from schemas.index import CommitRecord
 from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
 from schemas.version import SCHEMA_VERSION
-from storage import StorageError, committed_tasks, open_dataset, open_location, read_failures
-from storage.covers import mask_views
-from storage.label_judges import visibility_judge
-from storage.manifest import mark_adding
+from storage import StorageError, committed_tasks, open_dataset, open_location, read_failures, undominated
+from storage.checks import SAMPLED_ROWS_PER_SHARD
+from storage.dataset import commit_path, fragment_path, mark_adding, shard_path
+from storage.samples import mask_views, visibility_judge
 from storage.shards import KEY_CHUNK_ROWS, ShardReader
-from storage.validation import SAMPLED_ROWS_PER_SHARD
-from storage.writer import commit_path, fragment_path, shard_path
 
 runner = CliRunner()
 WHERE = ["local", "memory"]
@@ -568,15 +567,39 @@ def test_validate_all_recounts_the_minimum_covers(tmp_path: Path) -> None:
     assert len(lines) == 2
 
 
-def test_relabel_into_an_existing_dataset_is_refused(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
+def test_relabel_into_another_dataset_is_refused(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
     target = Path(shutil.copytree(engine_dataset.url, tmp_path / "existing"))
     before = (target / "dataset.json").read_bytes()
     result = shards("relabel", engine_dataset.url, "--alpha", "5", "--out", str(target))
     assert result.exit_code == 2
-    assert result.output.splitlines() == [
-        f"error: {target}: already holds a dataset; relabel writes a new one, give an empty --out"
-    ]
+    (line,) = result.output.splitlines()
+    there = info_of(str(target)).config_hash[:12]
+    assert line.startswith(f"error: {target}: already holds another dataset (config {there}, this relabel makes ")
+    assert line.endswith("give an empty --out, or the same one to finish a stopped relabel")
     assert (target / "dataset.json").read_bytes() == before
+
+
+def test_a_stopped_relabel_is_finished_by_running_it_again(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
+    """Stopped after its first task, the same relabel into the same --out keeps what was committed and
+    relabels the rest: the same samples as a relabel never stopped."""
+    from datagen.engine.relabel import RelabelProgress, relabel_dataset
+
+    class Stop(Exception):
+        pass
+
+    def stop_after_one(done: RelabelProgress) -> None:
+        raise Stop
+
+    stopped, whole = str(tmp_path / "stopped"), str(tmp_path / "whole")
+    with pytest.raises(Stop):
+        relabel_dataset(engine_dataset.url, 5, stopped, progress=stop_after_one)
+    assert len(committed_tasks(open_location(stopped))) == 1
+    result = shards("relabel", engine_dataset.url, "--alpha", "5", "--out", stopped)
+    assert result.exit_code == 0, result.output
+    assert f"kept 1 task a stopped relabel into {stopped} had committed" in result.output.splitlines()
+    assert shards("relabel", engine_dataset.url, "--alpha", "5", "--out", whole).exit_code == 0
+    assert assert_same_samples(whole, stopped) == len(open_dataset(whole)) > 0
+    assert shards("validate", stopped, "--all").exit_code == 0
 
 
 def test_relabel_with_an_alpha_beyond_the_views(engine_dataset: EngineDataset, tmp_path: Path) -> None:  # noqa: F811
@@ -820,7 +843,7 @@ def test_relabel_on_ray_gives_what_it_gives_here_and_reads_a_packed_dataset(tmp_
     here; a packed dataset relabels to the same too (its shards read from their byte ranges)."""
     from support.engine import start_local_ray, stop_local_ray
 
-    from storage.pack import pack_dataset
+    from storage.dataset import pack_dataset
 
     source, packed = tmp_path / "source", tmp_path / "packed"
     fx.build_dataset(str(source), finalise_index=True)

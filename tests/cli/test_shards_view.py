@@ -26,7 +26,7 @@ from datagen.cli.shards_view import format_bytes
 from datagen.inspection import plots
 from datagen.inspection.listing import COMMITTED, FAILED, list_tasks
 from storage import open_dataset
-from storage.reader import Dataset
+from storage.readers import Dataset
 
 WIDTH = 80
 QUANTILES = ("p0", "p5", "p50", "p95", "p100")

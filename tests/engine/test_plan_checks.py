@@ -121,7 +121,7 @@ def test_a_line_fixed_and_submitted_again_is_no_longer_reported_missing(tmp_path
 
     from schemas.index import failure_record
     from storage import open_dataset, read_failures, validate
-    from storage.writer import line_failure_id, write_failure
+    from storage.dataset import line_failure_id, write_failure
 
     home, out = tmp_path / "home", tmp_path / "out"
     config = tmp_path / "one.toml"

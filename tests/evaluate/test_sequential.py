@@ -16,7 +16,7 @@ from datagen.evaluate.sequential import DEFAULT_TOTAL_VIEWS, SequentialPlanner, 
 from datagen.evaluate.situation import RefinedScene, Situation
 from datagen.pipeline.occupancy import view_grids
 from schemas.planning import NextViewObservation, NextViewScorer
-from storage.occupancy import case_grid, pack_cells
+from storage.samples import case_grid, pack_cells
 
 INITIALS = (0, 9, 17, 31)
 

@@ -18,8 +18,8 @@ from datagen.pipeline.keys import key_centres, pack_keys, unpack_keys
 from datagen.pipeline.occupancy import GridFrame, view_grids, walk_rays
 from schemas.shard import GRID_HITS, VIEW_GAINS
 from storage import open_dataset, validate
-from storage.memory import load_memory
-from storage.occupancy import (
+from storage.readers import load_memory
+from storage.samples import (
     GRID_CELLS,
     GRID_SIDE,
     HIT_LOG_ODDS,

@@ -20,7 +20,7 @@ from datagen.cli.main import app
 from datagen.pipeline.objects.objects_file import read_objects_file
 from datagen.pipeline.objects.split import SplitShares, split_objects
 
-SPLIT_FOLDER = REPO_ROOT / "benchmarks" / "planners" / "real_objects"
+SPLIT_FOLDER = REPO_ROOT / "studies" / "planners" / "real_objects"
 CORPUS = SHARED_MESHES.parent / "corpus"
 
 
@@ -134,7 +134,7 @@ def test_committed_real_split_is_disjoint_holds_out_the_evaluation_sets_and_is_r
     sets = _sets(SPLIT_FOLDER)
     _assert_disjoint(sets)
     held = [REPO_ROOT / "examples" / "watertight-meshes.txt"]
-    held.append(REPO_ROOT / "benchmarks" / "planners" / "results" / "high-ceiling-meshes.txt")
+    held.append(REPO_ROOT / "examples" / "high-ceiling-meshes.txt")
     evaluation = {
         hashlib.sha256(Path(spec.source).read_bytes()).hexdigest()
         for path in held

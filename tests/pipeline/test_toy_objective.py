@@ -28,7 +28,7 @@ from schemas.config import GenerationConfig
 from schemas.jobs import TaskSpec
 from schemas.objectives import OBJECTIVES, Objective, UnknownObjective, objective_named, register_objective
 from storage import finalise, init_dataset, open_dataset, open_location, validate
-from storage.label_judges import JudgedTask, VisibilityJudge, task_judge
+from storage.samples import JudgedTask, VisibilityJudge, task_judge
 
 NAME = "first_new_view"
 

@@ -40,7 +40,7 @@ from datagen.pipeline.task import run_task
 from datagen.pipeline.viewspace import build_view_space
 from schemas.config import GenerationConfig, ViewSpaceConfig
 from storage import StorageError, open_dataset
-from storage.dataset_info import init_dataset
+from storage.dataset import finalise, init_dataset, write_task
 from storage.export import (
     EMPTY_LABEL,
     NO_POINTS,
@@ -51,9 +51,7 @@ from storage.export import (
     check_layout,
     export_air,
 )
-from storage.location import open_location
-from storage.reader import finalise
-from storage.writer import write_task
+from storage.store import open_location
 
 NUM_POINTS = 300
 VAL = 0.34

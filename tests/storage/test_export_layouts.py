@@ -19,10 +19,9 @@ from datagen.cli.shards import shards_app
 from datagen.pipeline.keys import pack_keys
 from schemas.shard import GT_KEYS
 from storage import StorageError, finalise, init_dataset, open_dataset, open_location, write_task
-from storage.bits import mask_bits
-from storage.export import LAYOUTS, PROVENANCE_JSON, PROVENANCE_MD, Export, export
-from storage.export.text import cpp_text
-from storage.reader import Dataset
+from storage.export import LAYOUTS, PROVENANCE_JSON, PROVENANCE_MD, Export, cpp_text, export
+from storage.readers import Dataset
+from storage.samples import mask_bits
 
 NEXT_VIEW_LAYOUTS = ("mascvp", "nbvnet", "pcnbv")
 GT_POINTS = 64

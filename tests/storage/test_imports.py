@@ -1,5 +1,5 @@
-"""`schemas` and `storage` import and read a dataset without the heavy pipeline dependencies, and
-torch comes in only with `storage.torch`."""
+"""`schemas` and `storage` (every layer's face) import and read a dataset without the heavy pipeline
+dependencies, and torch comes in only with `storage.torch`."""
 
 from __future__ import annotations
 
@@ -42,7 +42,8 @@ READ_WITHOUT_PIPELINE = BLOCKER + textwrap.dedent(
     import json
 
     import schemas, storage
-    import storage.reader, storage.validation, storage.export
+    import storage.store, storage.samples, storage.shards, storage.dataset
+    import storage.readers, storage.checks, storage.export
     from storage import open_dataset, validate
 
     for name in sys.argv[2].split(","):  # the blocker really blocks
@@ -77,7 +78,8 @@ TORCH_ONLY_WITH_STORAGE_TORCH = textwrap.dedent(
     import sys
 
     import schemas, storage
-    import storage.reader, storage.validation, storage.export
+    import storage.store, storage.samples, storage.shards, storage.dataset
+    import storage.readers, storage.checks, storage.export
     after_storage = "torch" in sys.modules
     import storage.torch
     print(json.dumps({"after_storage": after_storage, "after_storage_torch": "torch" in sys.modules}))
@@ -103,7 +105,7 @@ def dataset(tmp_path_factory: pytest.TempPathFactory) -> str:
 
 
 def test_schemas_and_storage_read_a_dataset_without_pipeline_dependencies(dataset: str, tmp_path: Path) -> None:
-    from storage.reader import open_dataset
+    from storage.readers import open_dataset
 
     report = json.loads(run_python(READ_WITHOUT_PIPELINE, ",".join(BLOCKED), ",".join(BLOCKED), dataset, cwd=tmp_path))
     expected = open_dataset(dataset)

@@ -1,5 +1,5 @@
 """A dataset at scale: a handful of files a task as written (version 5: each task's group one ZIP), and
-a finished dataset packed into a few large tar files with one manifest (`storage.pack`), read by our
+a finished dataset packed into a few large tar files with one manifest (`storage.dataset.pack`), read by our
 readers exactly as the original and by the standard tools as they are: zarr's own ``ZipStore`` for a
 task's group, and the `webdataset` loader for the packs."""
 
@@ -20,9 +20,9 @@ from support import storage as fx
 from schemas.shard import array_names
 from schemas.version import SCHEMA_VERSION
 from storage import ShardReader, StorageError, committed_tasks, open_dataset, open_location
-from storage.group_files import zip_entries
-from storage.pack import pack_dataset
-from storage.validation import validate
+from storage.checks import validate
+from storage.dataset import pack_dataset
+from storage.shards import zip_entries
 
 PACK_BYTES = 200_000
 """Small packs: each holds about one of the tests' tasks, so the dataset has several."""

@@ -26,13 +26,12 @@ from support import storage as fx
 from datagen.pipeline.random_streams import Purpose, stream
 from schemas.shard import keys_array, offsets_array, point_order
 from storage import ShardReader, StorageError, open_dataset, validate
-from storage.codec import COMPRESSORS, RowTaker
-from storage.memory import load_memory
-from storage.resampling import gather_clouds
-from storage.shards import POINT_CHUNK_ROWS
+from storage.dataset import shard_path
+from storage.readers import load_memory
+from storage.samples import gather_clouds
+from storage.shards import COMPRESSORS, POINT_CHUNK_ROWS, RowTaker
 from storage.stream import ShardStream
 from storage.torch import OSVPDataset
-from storage.writer import shard_path
 
 SEED = 5
 FIRST = sorted(fx.task_ids())[0]

@@ -1,5 +1,5 @@
 """The cheaper per-shard steps of the streaming read give exactly what the plain per-sample ones give:
-`storage.seeding` (numpy's SeedSequence -> PCG64 seeding on arrays), `samples.resample_many_keys`,
+`storage.samples.seeding` (numpy's SeedSequence -> PCG64 seeding on arrays), `samples.resample_many_keys`,
 `samples.many_cloud_positions` (version 4's windows and whole-cloud draws, seeded together),
 `covers.listed_marginals`, `samples.key_centres` into ``out``, the local listing of a shard
 (`group_files.local_files`) and its attributes read without zarr (`ShardReader`).
@@ -18,11 +18,19 @@ import pytest
 from support import storage as fx
 
 from storage import ShardReader, StorageError, open_dataset
-from storage.covers import cover_marginals, listed_marginals
-from storage.group_files import local_files
-from storage.resampling import cloud_positions, key_centres, many_cloud_positions, resample_keys, resample_many_keys
-from storage.seeding import StreamGenerator, pcg64_states
-from storage.writer import shard_path
+from storage.dataset import shard_path
+from storage.samples import (
+    StreamGenerator,
+    cloud_positions,
+    cover_marginals,
+    key_centres,
+    listed_marginals,
+    many_cloud_positions,
+    pcg64_states,
+    resample_keys,
+    resample_many_keys,
+)
+from storage.shards import local_files
 
 
 def test_pcg64_states_are_numpys() -> None:
@@ -147,7 +155,7 @@ def test_shard_attributes_without_zarr_are_zarrs(tmp_path: Path, layout: int) ->
 
 
 def test_a_numpy_seeding_otherwise_falls_back_to_numpys_own(monkeypatch: pytest.MonkeyPatch) -> None:
-    from storage import seeding
+    import storage.samples.seeding as seeding  # the fallback's own switch (an internal)
 
     assert seeding.agrees_with_numpy()
     monkeypatch.setattr(seeding, "agrees_with_numpy", lambda: False)

@@ -29,11 +29,20 @@ from support import storage as fx
 from schemas.index import FailureRecord
 from schemas.version import SCHEMA_VERSION
 from storage import StorageError
-from storage.location import open_location
-from storage.manifest import ADDING_FILE, mark_adding
-from storage.reader import Dataset, finalise, open_dataset
-from storage.validation import validate
-from storage.writer import commit_path, failure_path, fragment_path, read_failures, shard_path, write_failure
+from storage.checks import validate
+from storage.dataset import (
+    ADDING_FILE,
+    commit_path,
+    failure_path,
+    finalise,
+    fragment_path,
+    mark_adding,
+    read_failures,
+    shard_path,
+    write_failure,
+)
+from storage.readers import Dataset, open_dataset
+from storage.store import open_location
 
 FIRST, SECOND = sorted(fx.task_ids())
 FOLDER_LAYOUT = 4
@@ -234,7 +243,7 @@ def test_missing_chunk_file_stops_iteration_and_the_torch_dataset(fds: Path) -> 
 def test_each_shard_is_listed_once_per_reader(ds: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The whole-shard check costs one listing per shard per reader, however often the shard
     drops out of the cache (and selections share what their parent verified)."""
-    import storage.reader as reader_module
+    import storage.readers.reader as reader_module  # the reader's own cache size (an internal)
     from storage.shards import ShardReader
 
     verified: list[str] = []
@@ -303,7 +312,7 @@ def test_a_finished_manifest_is_the_dataset_read_without_listing_the_commit_reco
     """No job adds to it (a finished job's finalise took its marker away): opening reads the manifest and
     never lists ``commits/`` (100 requests at 100,000 tasks on S3). A commit record lost since then does
     not stop reading the samples, which are intact; validate names it and repair's fix stands."""
-    from storage.location import Location
+    from storage.store import Location
 
     assert not (ds / ADDING_FILE).exists()
     listed: list[str] = []
@@ -413,7 +422,7 @@ def test_a_manifest_naming_another_attempt_is_a_validate_problem(ds: Path) -> No
 
 
 def test_stale_failure_beside_a_commit_is_a_warning(ds: Path) -> None:
-    from storage.validation import validate_dataset
+    from storage.checks import validate_dataset
 
     record = FailureRecord(
         schema_version=SCHEMA_VERSION, task_id=FIRST, object_name="capsule", origin="o.txt:1", message="boom"
@@ -520,7 +529,7 @@ write's temporary of the whole shard file (one-file layout)."""
 def test_temporary_leftovers_are_warnings_and_never_read(
     ds: Path, clean: Path, fds: Path, clean_folders: Path, layout: str
 ) -> None:
-    from storage.validation import validate_dataset
+    from storage.checks import validate_dataset
 
     if layout == "folders":
         ds, clean = fds, clean_folders
@@ -540,13 +549,12 @@ def test_temporary_leftovers_are_warnings_and_never_read(
 
 def test_a_failed_atomic_write_leaves_no_temporary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A full disk fails the write; the partial temporary file is removed, not left in the dataset."""
-    import storage.location as location_module
 
     def full_disk(_: int) -> None:
         raise OSError(28, "No space left on device")
 
     location = open_location(str(tmp_path / "ds"))
-    monkeypatch.setattr(location_module.os, "fsync", full_disk)
+    monkeypatch.setattr(os, "fsync", full_disk)
     with pytest.raises(OSError, match="No space left"):
         location.write_atomic("index.json", b"{}")
     with pytest.raises(OSError, match="No space left"):

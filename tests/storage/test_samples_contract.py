@@ -1,6 +1,6 @@
-"""The sample contract (`storage.batch`, `storage.bits`, `storage.resampling`, `storage.splits`,
-`storage.sample_fields`) against independent truth, and every read path built on it
-(`storage.torch.OSVPDataset`, `storage.memory`, osvp's `SampleBank`) giving identical tensors.
+"""The sample contract (`storage.samples`: its batch, bits, resampling, splits and field registry)
+against independent truth, and every read path built on it
+(`storage.torch.OSVPDataset`, `storage.readers.memory`, osvp's `SampleBank`) giving identical tensors.
 
 Truth here is hand-computed centres, Python's own integer bit operations, numpy's generators called
 directly, and a brute-force split written out sample by sample; never the functions under test.
@@ -21,12 +21,25 @@ from datagen.pipeline.keys import key_centres as pipeline_centres
 from schemas.shard import LABEL_COLUMN, MASKS
 from schemas.version import SCHEMA_VERSION
 from storage import open_dataset
-from storage.batch import SampleBatch, check_source
-from storage.bits import mask_bits, padded_covers
-from storage.memory import load_memory
-from storage.resampling import key_centres, resample_cloud, resample_indices, resample_keys
-from storage.sample_fields import SAMPLE_FIELDS, SampleField, ShardRows, register_field
-from storage.splits import SplitError, held_out_objects, split_by_object, split_by_sample
+from storage.readers import load_memory
+from storage.samples import (
+    SAMPLE_FIELDS,
+    SampleBatch,
+    SampleField,
+    ShardRows,
+    SplitError,
+    check_source,
+    held_out_objects,
+    key_centres,
+    mask_bits,
+    padded_covers,
+    register_field,
+    resample_cloud,
+    resample_indices,
+    resample_keys,
+    split_by_object,
+    split_by_sample,
+)
 
 torch = pytest.importorskip("torch")
 
@@ -279,7 +292,7 @@ def test_osvp_covers_from_memory_are_those_built_sample_by_sample() -> None:
     """Samples without listed covers at the start, middle and end (marginals zero there)."""
     covers_module = pytest.importorskip("osvp.covers")
     from storage import LabelAmbiguity
-    from storage.memory import PackedCovers
+    from storage.readers import PackedCovers
 
     listed = [[], [0b0110, 0b1010], [], [0b0001], [0b1111, 0b0011, 0b0101], []]
     universe = [[0b1], [0b1000, 0b0100], [], [0b0010], [0b1100], [0b1]]

@@ -13,7 +13,7 @@ from support import storage as fx
 
 from schemas.shard import COVER_ROWS, COVERS, LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN, offsets_array
 from storage import StorageError, covers_universe, nearest_cover, open_dataset, validate
-from storage.writer import shard_path
+from storage.dataset import shard_path
 
 
 @pytest.fixture
@@ -34,7 +34,8 @@ def test_a_version_1_dataset_reads_and_validates(version_1: Path) -> None:
     assert dataset.info.schema_version == 1 and not dataset.has_ambiguity
     assert "label_support" not in dataset.index.column_names
     sample = dataset[3]
-    assert set(sample) == {"sample_id", "points", "observed", "view_state", "label"}
+    # a version-1 sample: the core keys and the batch-only fields every version has, never covers
+    assert set(sample) == {"sample_id", "points", "observed", "view_state", "label", "index", "cloud_size"}
     assert validate(str(version_1), full=True) == []
     with pytest.raises(StorageError, match=r"keeps no minimum covers; add them with `datagen shards relabel"):
         dataset.ambiguity(3)

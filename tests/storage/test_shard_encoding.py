@@ -1,6 +1,6 @@
 """The shard files `storage.shards` writes itself are zarr's own bytes.
 
-`storage.codec.encoded_row_shard` encodes a sharded key array without zarr's codec pipeline; the
+`storage.shards.encoded_row_shard` encodes a sharded key array without zarr's codec pipeline; the
 truth here is zarr writing the same array through ``array[...] = data``: every file must be
 byte-identical, so a dataset written either way is the same dataset.
 """
@@ -16,8 +16,7 @@ from support import storage as fx
 
 from schemas.shard import array_names
 from storage import open_location
-from storage.codec import COMPRESSORS, encoded_row_shard
-from storage.shards import POINT_CHUNK_ROWS, WRITE_EVERY_CHUNK, write_shard_group
+from storage.shards import COMPRESSORS, POINT_CHUNK_ROWS, WRITE_EVERY_CHUNK, encoded_row_shard, write_shard_group
 
 
 def zarr_written(folder: Path, data: np.ndarray, rows: int) -> bytes:

@@ -27,21 +27,21 @@ import pytest
 from support import storage as fx
 
 from schemas.shard import array_names
-from storage.dataset_info import init_dataset
-from storage.location import Location, open_location
-from storage.reader import open_dataset
-from storage.shards import ShardReader
-from storage.validation import validate
-from storage.writer import (
+from storage.checks import validate
+from storage.dataset import (
     ShardPayload,
     commit_path,
     committed_tasks,
     fragment_path,
+    init_dataset,
     read_commit,
     shard_path,
     sweep_orphans,
     write_task,
 )
+from storage.readers import open_dataset
+from storage.shards import ShardReader
+from storage.store import Location, open_location
 
 RANDOM_KILLS = 43
 """Children actually killed mid-write at random times (a child that finished first does not count)."""
@@ -52,10 +52,10 @@ ZYGOTE = textwrap.dedent(
     import json, os, pickle, signal, sys, tempfile, time, traceback
 
     import zarr
-    import storage.location as location_module
-    import storage.writer as writer_module
-    from storage.dataset_info import init_dataset
-    from storage.location import Location, open_location
+    import storage.store.location as location_module
+    import storage.dataset.writer as writer_module
+    from storage.dataset import init_dataset
+    from storage.store import Location, open_location
 
     with open(sys.argv[1], "rb") as handle:
         payload, info = pickle.load(handle)
@@ -67,7 +67,7 @@ ZYGOTE = textwrap.dedent(
 
 
     class OsProxy:
-        """storage.location's view of os, so that only its own replace/link calls are intercepted."""
+        """storage.store.location's view of os, so that only its own replace/link calls are intercepted."""
 
         def __init__(self, before_replace=None, before_link=None):
             self.before_replace, self.before_link = before_replace, before_link

@@ -18,21 +18,26 @@ from schemas.dataset import DatasetInfo
 from schemas.index import INDEX_SCHEMA, FailureRecord
 from schemas.shard import array_names, point_order
 from schemas.version import SCHEMA_VERSION
-from storage.dataset_info import init_dataset, read_info
-from storage.index import load_index
-from storage.location import StorageError, open_location
-from storage.manifest import ADDING_FILE, MANIFEST_FILE, mark_adding, read_manifest
-from storage.reader import Dataset, finalise, open_dataset
-from storage.shards import ShardReader
-from storage.writer import (
+from storage.dataset import (
+    ADDING_FILE,
+    MANIFEST_FILE,
     committed_tasks,
+    finalise,
     fragment_path,
+    init_dataset,
+    load_index,
+    mark_adding,
     read_commit,
     read_failures,
+    read_info,
+    read_manifest,
     shard_path,
     write_failure,
     write_task,
 )
+from storage.readers import Dataset, open_dataset
+from storage.shards import ShardReader
+from storage.store import StorageError, open_location
 
 
 @pytest.fixture(scope="module")
@@ -308,7 +313,7 @@ def test_adding_to_a_dataset_of_another_poco_version_names_the_setting(tmp_path:
 def test_finalise_writes_a_damaged_or_withdrawn_manifest_again(tmp_path: Path) -> None:
     """A manifest that cannot be read, or that names a task whose record was withdrawn, is written
     again from the commit records (what `shards repair` and a resumed job's end rely on)."""
-    from storage.repair import withdraw
+    from storage.checks import withdraw
 
     location = fx.build_dataset(str(tmp_path / "ds"), finalise_index=True)
     reference = open_dataset(str(tmp_path / "ds")).index

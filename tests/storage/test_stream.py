@@ -25,12 +25,12 @@ from support.s3_servers import BUCKET, REGION, S3Server
 
 from schemas.shard import array_names
 from storage import ShardReader, StorageError, open_dataset
-from storage.batch import SampleBatch
-from storage.codec import _decode_whole, whole_array
-from storage.splits import split_by_object
+from storage.dataset import shard_path
+from storage.samples import SampleBatch, split_by_object
+from storage.shards import whole_array
+from storage.shards.codec import _decode_whole  # the codec's own decoder (an internal)
 from storage.stream import ShardStream
 from storage.torch import OSVPDataset
-from storage.writer import shard_path
 
 NUM_POINTS = 128
 BATCH = 16

@@ -20,7 +20,7 @@ from support.torch_data import Built, bits, cached_dataset
 from torch.utils.data import DataLoader, Subset
 
 from datagen.pipeline.keys import key_centres, unpack_keys
-from storage.memory import load_memory
+from storage.readers import load_memory
 from storage.torch import OSVPDataset, ShardShuffleSampler
 
 NUM_POINTS = 256

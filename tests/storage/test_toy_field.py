@@ -2,8 +2,9 @@
 
 The toy field holds each sample's label mask and finishes a batch as the number of views its label
 holds: one `register_field` here, and the in-memory reader, the shard stream (in the main process
-and in DataLoader workers), the map-style `OSVPDataset` and its loader, and osvp's `SampleBank` all
-give it, equal to the label counted with Python's own integer bits from the index.
+and in DataLoader workers), the map-style `OSVPDataset` and its loader, ``Dataset[i]`` and the
+export layouts' `Dataset.sample`, and osvp's `SampleBank` all give it, equal to the label counted
+with Python's own integer bits from the index.
 """
 
 from __future__ import annotations
@@ -18,10 +19,18 @@ from support import storage as fx
 
 from schemas.shard import LABEL_COLUMN, MASKS
 from storage import open_dataset
-from storage.batch import SampleBatch
-from storage.held import Held, Positions, Stacked
-from storage.memory import load_memory
-from storage.sample_fields import SAMPLE_FIELDS, BatchFacts, ShardRows, fields_for, register_field
+from storage.readers import load_memory
+from storage.samples import (
+    SAMPLE_FIELDS,
+    BatchFacts,
+    Held,
+    Positions,
+    SampleBatch,
+    ShardRows,
+    Stacked,
+    fields_for,
+    register_field,
+)
 
 torch = pytest.importorskip("torch")
 
@@ -89,6 +98,12 @@ def test_a_field_registered_here_reaches_every_reader(covered: Path, toy: str) -
     assert seen == total
     workers = ShardStream(str(covered), num_points=8, batch_size=3, seed=2, num_workers=2)
     assert sum(_check(batch, truth) for batch in workers.loader()) == total
+
+    dataset = open_dataset(str(covered))  # Dataset[i] and the export's `Dataset.sample`: one sample's batch row
+    for i in range(total):
+        assert dataset[i][toy].dtype == np.float32 and float(dataset[i][toy]) == truth[i]
+        assert set(dataset.sample(i, [toy, "label"])) == {"sample_id", "label", toy}
+        assert float(dataset.sample(i, [toy])[toy]) == truth[i]
 
     mapped = OSVPDataset(str(covered), num_points=8)
     for i in range(total):

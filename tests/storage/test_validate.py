@@ -21,11 +21,11 @@ from support import storage as fx
 
 from schemas.index import CommitRecord
 from schemas.shard import LABEL_COLUMN, MASKS, VIEW_STATE_COLUMN
-from storage.location import open_location
-from storage.reader import finalise, open_dataset
+from storage.checks import validate
+from storage.dataset import commit_path, committed_tasks, finalise, fragment_path, shard_path
+from storage.readers import open_dataset
 from storage.shards import KEY_CHUNK_ROWS
-from storage.validation import validate
-from storage.writer import commit_path, committed_tasks, fragment_path, shard_path
+from storage.store import open_location
 
 LAYOUT = 4
 """The folder layout (see the module's docstring)."""
@@ -135,7 +135,7 @@ def test_chunk_file_truncated_on_disk(ds: Path, array: str) -> None:
 
 
 ZARR_FILLS_MISSING_CHUNKS = (
-    "storage/validation.py _check_shard/_check_key_sets: zarr reads a missing or zero-length chunk file as the "
+    "storage/checks/validation.py _check_shard/_check_key_sets: zarr reads a missing or zero-length chunk file as the "
     "fill value (all-zero keys), so validate reports nothing and the reader returns zero points; validate should "
     "compare nchunks_initialized with nchunks and check that every key set is sorted and unique"
 )
@@ -345,9 +345,8 @@ def test_problems_are_records_and_repair_sorts_them_whatever_their_wording(ds: P
     import dataclasses
 
     from storage import Mend, Problem
-    from storage.manifest import MANIFEST_FILE
-    from storage.repair import sort_problems
-    from storage.validation import validate_dataset
+    from storage.checks import sort_problems, validate_dataset
+    from storage.dataset import MANIFEST_FILE
 
     finalise(open_location(str(ds)))
     first, second = sorted(fx.task_ids())
@@ -374,7 +373,7 @@ def test_problems_are_records_and_repair_sorts_them_whatever_their_wording(ds: P
 
 def test_an_unreachable_store_is_its_own_error_not_a_problem(tmp_path: Path) -> None:
     from storage import StorageError, StoreUnreachable
-    from storage.store_errors import storage_failure
+    from storage.store import storage_failure
 
     error = storage_failure("s3://bucket/data", ConnectionRefusedError("connection refused"))
     assert isinstance(error, StoreUnreachable) and isinstance(error, StorageError)

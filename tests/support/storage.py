@@ -29,11 +29,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
 from schemas.version import SCHEMA_VERSION
-from storage.dataset_info import init_dataset
-from storage.group_files import zip_bytes
-from storage.location import Location, open_location
-from storage.reader import finalise
-from storage.writer import ShardPayload, write_task
+from storage.dataset import ShardPayload, finalise, init_dataset, write_task
+from storage.shards import zip_bytes
+from storage.store import Location, open_location
 
 OBJECTS = ("builtin:capsule", "builtin:cone")
 ROTATION = 0
@@ -180,7 +178,7 @@ def total_samples() -> int:
 def shard_group(path: Path, mode: str = "r") -> Iterator[zarr.Group]:
     """The zarr group of a shard as zarr itself opens it (the tests' independent reader): a folder group
     (layouts 1-4) directly, a ZIP (layout 5) through zarr's ``ZipStore``. A ZIP opened for writing is
-    extracted, edited as a folder and zipped again as the writer zips (`storage.group_files.zip_bytes`)
+    extracted, edited as a folder and zipped again as the writer zips (`storage.shards.zip_bytes`)
     when the block ends."""
     if not path.name.endswith(".zip"):
         yield zarr.open_group(str(path), mode=mode)  # type: ignore[arg-type]
@@ -245,7 +243,7 @@ def truncate_member(path: Path, member: str, keep: float = 0.5) -> None:
 
 def corrupt_member(path: Path, member: str) -> None:
     """Flip a byte in the middle of ``member``'s stored bytes (the ZIP's own directory stays intact)."""
-    from storage.group_files import zip_entries
+    from storage.shards import zip_entries
 
     data = bytearray(path.read_bytes())
     start, size = zip_entries(memoryview(bytes(data)))[member]
@@ -259,9 +257,8 @@ def finalise_as_before(location: Location) -> None:
     a dataset finalised so must still read as it did."""
     import json
 
-    from storage.index import INDEX_COVERAGE_FILE, INDEX_FILE, merge_fragments
-    from storage.parquet import parquet_bytes
-    from storage.writer import committed_tasks
+    from storage.dataset import INDEX_COVERAGE_FILE, INDEX_FILE, committed_tasks, merge_fragments
+    from storage.store import parquet_bytes
 
     commits = committed_tasks(location)
     location.remove("index", recursive=True)

@@ -1,10 +1,11 @@
 """Small real datasets for the storage/torch, export and training-signal tests.
 
 Datasets are built from built-in shapes through the real pipeline (`datagen.pipeline.task.run_task` ->
-`datagen.engine.shard_payload.task_payload` -> `storage.writer.write_task`, then `storage.reader.finalise`), once per
-test session (`cached_dataset`). Alongside the URL a build keeps what the pipeline produced for every
-sample (packed keys of ``points`` and ``observed``, case and label masks), so tests can check what the
-readers return against the pipeline's own output rather than against the reader itself.
+`datagen.engine.shard_payload.task_payload` -> `storage.dataset.write_task`, then
+`storage.dataset.finalise`), once per test session (`cached_dataset`). Alongside the URL a build keeps
+what the pipeline produced for every sample (packed keys of ``points`` and ``observed``, case and label
+masks), so tests can check what the readers return against the pipeline's own output rather than
+against the reader itself.
 
 ``shift`` builds use `ShiftRefiner`, a deterministic stand-in refiner that adds every observed key moved
 by +1 voxel along x (inside the band), so a sample's ``points`` differ from its ``observed`` keys (with
@@ -39,10 +40,8 @@ from datagen.pipeline.viewspace import build_view_space
 from schemas.config import GenerationConfig
 from schemas.dataset import DatasetInfo
 from schemas.version import SCHEMA_VERSION
-from storage.dataset_info import init_dataset
-from storage.location import open_location
-from storage.reader import finalise
-from storage.writer import write_task
+from storage.dataset import finalise, init_dataset, write_task
+from storage.store import open_location
 
 # Cheap built-ins (each task well under a second); the torus knots take 10-60 s to label, avoid them.
 SMALL_OBJECTS = ("capsule", "l_bracket", "chair")

@@ -35,7 +35,7 @@ from datagen.cli.main import app
 from datagen.settings import RunSettings
 from jobs.ledger import DONE
 from storage import Location, StorageError, committed_tasks, open_dataset, open_location, validate, validate_dataset
-from storage.writer import commit_path
+from storage.dataset import commit_path
 
 pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="engine tests read /proc (Linux)"),

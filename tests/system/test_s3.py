@@ -54,7 +54,7 @@ from datagen.settings import RunSettings
 from jobs.ledger import DONE, PENDING, RUNNING, Job, Task
 from schemas.index import CommitRecord
 from storage import committed_tasks, open_dataset, open_location, validate
-from storage.writer import sweep_orphans
+from storage.dataset import sweep_orphans
 
 pytestmark = [
     pytest.mark.skipif(not sys.platform.startswith("linux"), reason="engine tests read /proc (Linux)"),

@@ -4,7 +4,7 @@ A label is one arbitrary minimum cover among many equally good ones (schema vers
 all, up to a cap). `CoverBank` keeps, per sample, the listed covers and U's set-cover rows packed
 as uint64 masks with offsets (bit v = view v), the support and per-view marginals as bit rows, so
 a batch target or a judgement of a prediction needs no reader. Judging goes through
-`storage.covers` (`nearest_cover`, `covers_universe`): osvp never re-implements the cover rules.
+`storage.samples.covers` (`nearest_cover`, `covers_universe`): osvp never re-implements the cover rules.
 """
 
 from __future__ import annotations
@@ -16,9 +16,8 @@ import numpy as np
 import numpy.typing as npt
 
 from storage import LabelAmbiguity
-from storage.bits import mask_bits, padded_covers
-from storage.covers import cover_marginals, covers_universe, nearest_cover
-from storage.memory import PackedCovers
+from storage.readers import PackedCovers
+from storage.samples import cover_marginals, covers_universe, mask_bits, nearest_cover, padded_covers
 
 MaskArray = npt.NDArray[np.uint64]
 FloatArray = npt.NDArray[np.float32]
@@ -94,9 +93,9 @@ class CoverBank:
         num_views: int,
         marginals: npt.NDArray[np.float32] | None = None,
     ) -> CoverBank:
-        """What `storage.memory.load_memory` read (every sample's covers and U rows as masks with
+        """What `storage.readers.load_memory` read (every sample's covers and U rows as masks with
         offsets), with the marginals `build` would compute (``marginals``: the ones the load already
-        holds, the `storage.sample_fields` field), without reading the dataset again."""
+        holds, the `storage.samples.sample_fields` field), without reading the dataset again."""
         if marginals is None:
             marginals = cls._marginals(packed, num_views)
         return cls(
@@ -164,7 +163,7 @@ class CoverBank:
 
     def padded(self, rows: npt.ArrayLike) -> tuple[FloatArray, BoolArray]:
         """The covers of ``rows`` as bit rows (B, C, n) padded to the batch's largest listing, and
-        (B, C) True where a cover is real (`storage.bits.padded_covers`): what
+        (B, C) True where a cover is real (`storage.samples.padded_covers`): what
         `osvp.loss.mincover_loss` takes."""
         index = np.asarray(rows, dtype=np.int64).reshape(-1)
         return padded_covers([self.covers_of(i) for i in index.tolist()], self.num_views)

@@ -1,11 +1,12 @@
 """Samples in memory for training: read once through `storage`, then batched without a reader.
 
 A CPU epoch over a few thousand samples must not wait on Zarr reads, so `SampleBank.load` reads
-every sample's integer keys once through `storage.memory` (shard by shard, the reader's fast order),
+every sample's integer keys once through `storage.readers.memory` (shard by shard, the reader's fast order),
 packed in one int16 array with offsets; a batch is then a numpy gather. Each sample is resampled to
 a fixed point count from its own stream (seed, epoch, sample), so batches never depend on batch
 size, order or device, and a resumed run sees exactly the tensors an uninterrupted one would; the
-conversions and the splits are the sample contract's (`storage.resampling`, `storage.splits`), every reader's.
+conversions and the splits are the sample contract's (`storage.samples`: its resampling and splits),
+every reader's.
 A version-2 dataset also gives every sample's minimum covers (`osvp.covers.CoverBank`), which the
 ambiguity-aware targets and metrics need; a version-1 dataset has none (`require_covers` says how
 to add them).
@@ -27,9 +28,8 @@ import torch
 import storage
 from osvp.covers import CoverBank
 from schemas.errors import DatagenError
-from storage.batch import SampleBatch
-from storage.memory import MemoryDataset, load_memory
-from storage.splits import SplitError, split_by_object, split_by_sample
+from storage.readers import MemoryDataset, load_memory
+from storage.samples import SampleBatch, SplitError, split_by_object, split_by_sample
 
 Split = Literal["samples", "objects"]
 
@@ -43,12 +43,12 @@ class DataError(DatagenError):
 
 
 Batch = SampleBatch[torch.Tensor]
-"""A training batch: the sample contract's one batch type (`storage.batch.SampleBatch`), as tensors."""
+"""A training batch: the sample contract's one batch type (`storage.samples.SampleBatch`), as tensors."""
 
 
 @dataclass(frozen=True)
 class SampleBank:
-    """Every sample of a dataset in memory (`storage.memory.MemoryDataset`: keys packed with
+    """Every sample of a dataset in memory (`storage.readers.MemoryDataset`: keys packed with
     offsets, view states and labels as bit rows), with its minimum covers as a `CoverBank`."""
 
     samples: MemoryDataset
@@ -125,7 +125,7 @@ class SampleBank:
 
     @classmethod
     def from_memory(cls, samples: MemoryDataset) -> SampleBank:
-        """A bank over samples `storage.memory.load_memory` read (its covers become a `CoverBank`)."""
+        """A bank over samples `storage.readers.load_memory` read (its covers become a `CoverBank`)."""
         packed = samples.covers
         covers = None
         if packed is not None:
@@ -143,7 +143,7 @@ class SampleBank:
     ) -> Batch:
         """Samples ``rows``, each resampled to ``num_points`` from stream (seed, epoch, row); with
         marginals and support when the dataset has covers, and the padded covers if asked for (one
-        path for every field: `storage.assemble`)."""
+        path for every field: `storage.samples.assemble`)."""
         return self.samples.batch(rows, num_points, seed, epoch, covers=with_covers).tensors()
 
 

@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass, fields
 import torch
 from torch import Tensor, nn
 
-from storage.occupancy import GRID_SIDE
+from storage.samples import GRID_SIDE
 
 
 @dataclass(frozen=True)

@@ -29,7 +29,7 @@ import torch.nn.functional as F
 
 from schemas.errors import DatagenError
 from schemas.registry import Registry
-from storage.sample_fields import SAMPLE_FIELDS
+from storage.samples import SAMPLE_FIELDS
 
 DEFAULT_LAMBDA = 1.25
 

@@ -2,7 +2,7 @@
 
 The scorer takes what a dataset sample holds (the cloud's key centres in metres and the view state)
 and returns one probability per view. The cloud is resampled to the checkpoint's point count by the
-sample contract (`storage.resampling.resample_cloud`) from a fixed stream, so a scene always gets the
+sample contract (`storage.samples.resample_cloud`) from a fixed stream, so a scene always gets the
 same answer. It is a `schemas.planning.DecodingScorer`:
 `CheckpointScorer.select_views` turns the probabilities into views with the checkpoint's default
 decoding (``osvp:FILE``) or a named one (``osvp+size:FILE``, ``osvp+threshold=0.3:FILE``).
@@ -27,7 +27,7 @@ from osvp.checkpoint import Checkpoint, load_checkpoint
 from osvp.decoding import DECODING_REGISTRY, parse_decoding, select_views
 from osvp.loss import is_next_view
 from schemas.planning import DecodingScorer, NextViewObservation, ScorerFactory
-from storage.resampling import resample_cloud
+from storage.samples import resample_cloud
 
 PLANNING_SEED = 0
 

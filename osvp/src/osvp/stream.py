@@ -9,7 +9,7 @@ limit (``osvp train --memory-limit``, 8 GB by default) or when asked (``--stream
 In streaming mode the validation rows stay in memory: `index_bank` is a `SampleBank` of every sample's
 index facts (object, view state, label; no clouds), on which the split and the training subset are
 drawn exactly as in memory; `rows_bank` then reads the clouds and covers of the validation rows only
-(`storage.memory.load_memory`), at most ``val_cap`` of them (a seeded draw, `cap_rows`). Every sample
+(`storage.readers.load_memory`), at most ``val_cap`` of them (a seeded draw, `cap_rows`). Every sample
 resamples from its dataset row's stream (seed, epoch, row), so a streamed batch holds the clouds
 `SampleBank.batch` gives, and the validation clouds are the in-memory ones.
 """
@@ -25,8 +25,8 @@ import torch
 
 import storage
 from osvp.data import Batch, DataError, SampleBank, no_covers
-from storage.memory import load_index_facts, load_memory
-from storage.occupancy import PACKED_CELLS
+from storage.readers import load_index_facts, load_memory
+from storage.samples import PACKED_CELLS
 from storage.stream import ShardStream
 
 GB = 1e9
@@ -53,7 +53,7 @@ def memory_estimate(
         cap = int(dataset.info.config.label_cover_cap)
         listed = np.minimum(dataset.index.column("min_covers").to_numpy().astype(np.int64), cap)
         total += samples * (2 * 4 * width + 8 + 8 + 1) + int(listed.sum()) * 8
-    if "grid" in fields:  # each task's per-view ray cells (`storage.memory.CaseGrids`)
+    if "grid" in fields:  # each task's per-view ray cells (`storage.samples.CaseGrids`)
         tasks = len(set(dataset.index.column("shard").to_pylist()))
         total += tasks * 2 * width * PACKED_CELLS + samples * 16
     return total

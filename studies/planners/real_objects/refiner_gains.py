@@ -20,7 +20,7 @@ import numpy as np
 
 from benchmarks.common import add_report_options, check_report
 from storage import open_dataset
-from storage.memory import load_memory
+from storage.readers import load_memory
 from studies.planners.runs import write_markdown
 
 
