@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The cluster check, end to end, against the cluster of scripts/cluster-up.sh (started if it is not
 # up): a job submitted from this host, then four faults, each measured, each dataset compared by
-# content digest (scripts/dataset_digest.py) with a local run of the same job.
+# content digest (datagen shards digest) with a local run of the same job.
 #
 #   bash scripts/cluster-faults.sh [WORKDIR]     # default WORKDIR: a new /tmp/datagen-cluster-check.*
 #
@@ -83,7 +83,7 @@ check_dataset() { # check_dataset NAME URL T0: validate, compare the digest, pri
     if ! datagen shards validate "$url" >"$WORK/$name.validate" 2>&1; then
         FAILED=1; result "$name" "$(since "$t0")" "validate FAILED: $(tail -1 "$WORK/$name.validate")" -; return
     fi
-    read -r digest samples unique _ < <(python scripts/dataset_digest.py "$url")
+    read -r digest samples unique _ < <(datagen shards digest "$url")
     if [ "$digest" = "$REFERENCE" ] && [ "$samples" = "$unique" ]; then
         outcome="complete: $samples samples, $unique distinct, validate ok, digest = local run"
     else
@@ -105,7 +105,7 @@ healthy "$(cname head)" 2>/dev/null || bash scripts/cluster-up.sh
 t0=$(now)
 datagen submit --objects "$OBJECTS" --config "$CONFIG" --out "$WORK/local" --home "$WORK/local-home" \
     --workers "$WORKERS" >"$WORK/local.log" 2>&1
-read -r REFERENCE samples unique _ < <(python scripts/dataset_digest.py "$WORK/local")
+read -r REFERENCE samples unique _ < <(datagen shards digest "$WORK/local")
 result local "$(since "$t0")" "reference: $samples samples, $unique distinct (local Ray, $WORKERS CPUs)" "${REFERENCE:0:16}"
 
 # --- a job from the host ------------------------------------------------------------------------

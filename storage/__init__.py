@@ -47,7 +47,7 @@ if TYPE_CHECKING:
         write_task,
     )
     from storage.export import export_air
-    from storage.readers import Dataset, LabelAmbiguity, NextView, open_dataset
+    from storage.readers import Dataset, LabelAmbiguity, NextView, dataset_digest, open_dataset
     from storage.samples import covers_universe, nearest_cover, undominated, universe_rows
     from storage.shards import ShardReader
     from storage.store import (
@@ -81,6 +81,7 @@ __all__ = [
     "check_store",
     "committed_tasks",
     "covers_universe",
+    "dataset_digest",
     "existing_info",
     "export_air",
     "finalise",
@@ -138,6 +139,7 @@ _HOMES = {
     "LabelAmbiguity": "storage.readers",
     "NextView": "storage.readers",
     "open_dataset": "storage.readers",
+    "dataset_digest": "storage.readers",
     "covers_universe": "storage.samples",
     "nearest_cover": "storage.samples",
     "undominated": "storage.samples",

@@ -23,7 +23,7 @@ faults in the cluster run: at ``--kill-container-at`` of the tasks done, SIGKILL
 first worker container's init (as a crash or the OOM killer would; the restart policy brings it back
 and it rejoins), and at ``--kill-worker-at`` SIGKILL to a Ray worker process running a task in the
 second worker container. The job must end complete; ``datagen shards validate`` and
-``scripts/dataset_digest.py`` of both datasets are compared. The meshes are copied into every worker
+``datagen shards digest`` of both datasets are compared. The meshes are copied into every worker
 container at the same absolute path first (a cluster needs the objects file's paths on every node: a
 shared file system; datagen reads meshes from local paths only).
 
@@ -237,7 +237,7 @@ def measured(args: list[str], env: dict[str, str], log: Path, **options: Any) ->
 
 
 def digest(url: str, env: dict[str, str], log: Path) -> tuple[Measurement, list[str]]:
-    result = measured([sys.executable, "scripts/dataset_digest.py", url], env, log)
+    result = measured([datagen(), "shards", "digest", url], env, log)
     return result, log.read_text().split()
 
 

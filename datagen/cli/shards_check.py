@@ -1,4 +1,5 @@
-"""``datagen shards validate | relabel``: is a dataset right, and the same samples for another alpha.
+"""``datagen shards validate | digest | relabel``: is a dataset right, is it the same as another, and
+the same samples for another alpha.
 
 ``validate`` joins two checkers in one pass over the shards: `storage.validate` (structure, index,
 commit and failure records agreeing, every checked label covers its U; numpy only) and
@@ -19,6 +20,23 @@ from storage.dataset import Mend, Problem, lines
 
 if TYPE_CHECKING:
     from datagen.inspection.label_check import LabelProblem
+
+
+def digest(
+    urls: Annotated[list[str], typer.Argument(help="Datasets (paths or fsspec URLs).", show_default=False)],
+) -> None:
+    """Print each dataset's content digest (SHA-256 over every stored array, sample and index column but
+    times and hosts): two runs of the same job hold the same samples exactly when their digests agree.
+
+    One line each: DIGEST  SAMPLES  DISTINCT-IDS  URL.
+    """
+    from storage.readers import dataset_digest
+
+    for url in urls:
+        with user_errors(url):
+            found = dataset_digest(url, dataset_options(url))
+        typer.echo(f"{found.sha256}  {found.samples}  {found.distinct_ids}  {url}")
+
 
 UNCOVERED_KIND = "uncovered"
 """`storage.validate`'s kind for a label that leaves keys of its U uncovered."""

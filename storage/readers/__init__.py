@@ -1,7 +1,8 @@
 """Reading samples: `open_dataset` (random access, ``ds[i]``, selections, splits) and `load_memory`
 (a dataset's samples held in memory, batched without a reader), both through the one assembler of
-`storage.samples`. The PyTorch readers are `storage.torch` (`OSVPDataset`) and `storage.stream`
-(`ShardStream`): importing them imports torch, importing this does not.
+`storage.samples`; `dataset_digest`, the content digest two runs of one job share.
+The PyTorch readers are `storage.torch` (`OSVPDataset`) and `storage.stream` (`ShardStream`):
+importing them imports torch, importing this does not.
 """
 
 from typing import TYPE_CHECKING
@@ -9,16 +10,19 @@ from typing import TYPE_CHECKING
 from schemas.lazy import lazy_names
 
 if TYPE_CHECKING:
+    from storage.readers.digest import Digest, dataset_digest
     from storage.readers.memory import MemoryDataset, PackedCovers, load_index_facts, load_memory
     from storage.readers.reader import Dataset, LabelAmbiguity, NextView, Sample, mask_to_bools, open_dataset
 
 __all__ = [
     "Dataset",
+    "Digest",
     "LabelAmbiguity",
     "MemoryDataset",
     "NextView",
     "PackedCovers",
     "Sample",
+    "dataset_digest",
     "load_index_facts",
     "load_memory",
     "mask_to_bools",
@@ -26,6 +30,8 @@ __all__ = [
 ]
 
 _HOMES = {
+    "Digest": "storage.readers.digest",
+    "dataset_digest": "storage.readers.digest",
     "Dataset": "storage.readers.reader",
     "LabelAmbiguity": "storage.readers.reader",
     "NextView": "storage.readers.reader",
