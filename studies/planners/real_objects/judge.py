@@ -52,13 +52,21 @@ FLAT, LONG = 0.3, 2.0
 
 
 def evaluate(
-    objects: Path, planners: Sequence[str], fixed_from: str, margins: Sequence[int], workers: int, work: Path
+    objects: Path,
+    planners: Sequence[str],
+    fixed_from: str,
+    margins: Sequence[int],
+    workers: int,
+    work: Path,
+    config: Path | None = None,
 ) -> dict[str, Any]:
     """One `datagen evaluate --json --margins` of ``planners`` beside the ceiling and the floor, cached in ``work``."""
     command = ["datagen", "evaluate", "--objects", str(objects), "--rotations", "0,4", "--initial-views", "0,8,16,24"]
     command += ["--fixed-from", fixed_from, "-p", "gain", "-p", "fixed", "-p", "spread"]
     command += ["--margins", ",".join(map(str, margins)), "--workers", str(workers), "--json"]
     command += [part for planner in planners for part in ("-p", planner)]
+    if config is not None:  # a planner trained at other rotations is still judged at 0 and 4 of 8
+        command += ["--config", str(config)]
     key = hashlib.sha256(json.dumps(command[1:]).encode()).hexdigest()[:16]
     work.mkdir(parents=True, exist_ok=True)
     cache = work / f"evaluate-{objects.stem}-{key}.json"
@@ -189,13 +197,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--margins", default=",".join(map(str, MARGINS)))
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--work", type=Path, default=Path("judge-work"))
+    parser.add_argument(
+        "--config",
+        type=Path,
+        help="image with this config (8 rotations, the planners' refiner) rather than the first planner's own",
+    )
     add_report_options(parser)
     args = parser.parse_args(argv)
     check_report(parser, args.out, args.replace)
     planners = dict(pair.split("=", 1) for pair in args.planner)
     margins = [int(v) for v in args.margins.split(",")]
     objects = SETS[args.set]
-    report = evaluate(objects, list(planners.values()), args.fixed_from, margins, args.workers, args.work)
+    report = evaluate(objects, list(planners.values()), args.fixed_from, margins, args.workers, args.work, args.config)
     facts = object_facts(objects)
     lines = [f"# Planners on the {args.set} set ({objects.name}: {len(facts)} objects, 8 situations each)", ""]
     for section in (

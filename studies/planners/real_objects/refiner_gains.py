@@ -1,8 +1,8 @@
 """Do the next-view labels depend on the refiner? (issue 49): the same objects and rotations made with
 POCO and with no refiner, compared sample by sample.
 
-    python -m studies.planners.real_objects.refiner_gains WORK/real-train-poco-r2 WORK/real-train-none-r2 \\
-        [--out studies/planners/results/refiner-gains.md --replace]
+    python -m studies.planners.real_objects.refiner_gains WORK/real-train-poco-r1 WORK/real-train-none-r1 \\
+        [--out studies/planners/real_objects/results/refiner-gains.md --replace]
 
 docs/pipeline.md (section 8.1) says a view's gain counts ground-truth surface keys only, so the gains,
 the best next view and the input cases themselves are the same whichever refiner made the dataset;

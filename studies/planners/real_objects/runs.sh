@@ -24,15 +24,22 @@ recipe() {  # the osvp train arguments of a run, by name
     # 100 and all 171 training objects (--max-objects draws nested seeded subsets), from random weights
     # and fine-tuned from the planner pre-trained on the 1,000 synthetic objects
     scvp-nb-synth-4k) echo "--data $work/synth1000-none --val-data $work/real-val-none --network scvp --target near_best --steps 4000" ;;
+    # the pre-training of the curve's -init points: the first 200 synthetic objects (synth200-none), 2,000 steps
+    scvp-nb-synth200-2k) echo "--data $work/synth200-none --val-data $work/real-val-none --network scvp --target near_best --steps 2000" ;;
     lc-*-scratch|lc-*-init)
       n="${1#lc-}"; n="${n%-*}"; init=""
-      [ "${1##*-}" = init ] && init="--init $runs/scvp-nb-synth-4k/best.pt"
+      [ "${1##*-}" = init ] && init="--init $runs/scvp-nb-synth200-2k/best.pt"
       all=""; [ "$n" = all ] || all="--max-objects $n"
       echo "${train_none[*]} --network scvp --target near_best --steps 1000 $all $init" ;;
-    # does refinement buy learning value? the one-shot recipe (oneshot-mc-8k, shipped:oneshot) on POCO's
-    # labels of the same objects and rotations (real-train-poco: the paper's settings), equal steps, the
-    # same validation objects and seed
-    oneshot-poco-8k) echo "--data $work/real-train-poco-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 8000" ;;
+    # does refinement buy learning value? the paper's one-shot planner on the paper's cover labels of the
+    # same cases, made with POCO (real-train-poco: the paper's settings) and with no refiner, equal steps
+    # and seed, each validated on its own labels of the same held-out training objects (--split objects)
+    cover-none-4k) echo "--data $work/real-train-none --network osvp --target mincover --steps 4000 --split objects --val-fraction 0.1" ;;
+    cover-poco-4k) echo "--data $work/real-train-poco --network osvp --target mincover --steps 4000 --split objects --val-fraction 0.1" ;;
+    # the same comparison on the one-rotation twins (twins.sh: the CPU of a POCO dataset at 8 rotations
+    # is 4.7 hours on 2 cores; one rotation of the same 171 objects is an eighth of it)
+    cover-none-r1-2k) echo "--data $work/real-train-none-r1 --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1" ;;
+    cover-poco-r1-2k) echo "--data $work/real-train-poco-r1 --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1" ;;
     *) echo "unknown run $1" >&2; return 1 ;;
   esac
 }
