@@ -25,8 +25,9 @@ if TYPE_CHECKING:
 def digest(
     urls: Annotated[list[str], typer.Argument(help="Datasets (paths or fsspec URLs).", show_default=False)],
 ) -> None:
-    """Print each dataset's content digest (SHA-256 over every stored array, sample and index column but
-    times and hosts): two runs of the same job hold the same samples exactly when their digests agree.
+    """Print each dataset's content digest (SHA-256 over every stored shard array and every index column
+    but solver times, attempts and shard file names): two runs of the same job hold the same samples
+    exactly when their digests agree.
 
     One line each: DIGEST  SAMPLES  DISTINCT-IDS  URL.
     """
