@@ -29,14 +29,22 @@ def digest(
     but solver times, attempts and shard file names): two runs of the same job hold the same samples
     exactly when their digests agree.
 
-    One line each: DIGEST  SAMPLES  DISTINCT-IDS  URL.
+    One line each: DIGEST  SAMPLES  DISTINCT-IDS  URL; a URL that holds no readable dataset is one error
+    line, the others are still digested, and the command then exits 2.
     """
     from storage.readers import dataset_digest
 
+    refused: typer.Exit | None = None
     for url in urls:
-        with user_errors(url):
-            found = dataset_digest(url, dataset_options(url))
+        try:
+            with user_errors(url):
+                found = dataset_digest(url, dataset_options(url))
+        except typer.Exit as exit_:  # user_errors printed the line; go on with the rest
+            refused = exit_
+            continue
         typer.echo(f"{found.sha256}  {found.samples}  {found.distinct_ids}  {url}")
+    if refused is not None:
+        raise refused
 
 
 UNCOVERED_KIND = "uncovered"

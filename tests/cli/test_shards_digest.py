@@ -46,6 +46,10 @@ def test_one_label_bit_changes_the_digest(engine_dataset: EngineDataset, tmp_pat
     assert dataset_digest(str(copy)).sha256 != PINNED
 
 
-def test_a_missing_dataset_is_one_error_line(tmp_path: Path) -> None:
-    result = runner.invoke(app, ["shards", "digest", str(tmp_path)])
+def test_a_missing_dataset_is_one_error_line_and_the_others_are_digested(
+    engine_dataset: EngineDataset,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    result = runner.invoke(app, ["shards", "digest", str(tmp_path), engine_dataset.url])
     assert result.exit_code == 2 and result.output.count("error:") == 1, result.output
+    assert f"{PINNED}  " in result.output and result.output.rstrip().endswith(engine_dataset.url)
