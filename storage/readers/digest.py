@@ -15,12 +15,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
 
 from schemas.index import VOLATILE_COLUMNS
 from schemas.shard import array_names
 from storage.dataset import committed_tasks
 from storage.readers.reader import open_dataset
 from storage.shards import ShardReader
+
+COLUMN_SLICE_ROWS = 65_536
+"""Index rows turned into Python values at a time while hashing a column."""
 
 
 @dataclass(frozen=True)
@@ -52,9 +57,23 @@ def dataset_digest(url: str, storage_options: dict[str, Any] | None = None) -> D
         shard = ShardReader(dataset.location, record.shard)
         for name in array_names(dataset.info.schema_version):
             _feed(hasher, f"{record.task_id}/{name}", np.asarray(shard.array(name)))
-    ids = dataset.index.column("sample_id").to_pylist()
     columns = [name for name in dataset.index.column_names if name not in VOLATILE_COLUMNS]
     table = dataset.index.select(columns).sort_by("sample_id")
     for name in columns:
-        _feed(hasher, f"index/{name}", table.column(name).to_pylist())
-    return Digest(hasher.hexdigest(), len(ids), len(set(ids)))
+        _feed_column(hasher, f"index/{name}", table.column(name))
+    distinct = pc.count_distinct(dataset.index.column("sample_id")).as_py()
+    return Digest(hasher.hexdigest(), dataset.index.num_rows, distinct)
+
+
+def _feed_column(hasher: Any, name: str, column: pa.ChunkedArray) -> None:
+    """Hash a column as `_feed` hashes its whole Python list (the same bytes: the list's repr), a slice
+    of rows at a time, so a million-row index never becomes one Python list or one string."""
+    hasher.update(name.encode() + b"\0" + b"[")
+    first = True
+    for chunk in column.chunks:
+        for start in range(0, len(chunk), COLUMN_SLICE_ROWS):
+            values = chunk.slice(start, COLUMN_SLICE_ROWS).to_pylist()
+            if values:
+                hasher.update(((", " if not first else "") + ", ".join(map(repr, values))).encode())
+                first = False
+    hasher.update(b"]")

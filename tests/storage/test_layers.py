@@ -41,6 +41,7 @@ PRIVATE_IN_TESTS = {
     ("tests/storage/test_storage_crash.py", "storage.dataset.writer"): "kills the writer between its steps",
     ("tests/storage/test_read_kernels.py", "storage.samples.seeding"): "switches the seeding's numpy check off",
     ("tests/storage/test_stream.py", "storage.shards.codec"): "the codec's own whole-array decoder",
+    ("tests/storage/test_digest.py", "storage.readers.digest"): "the column hasher against the whole-list one",
 }
 """(test file, private module) -> why a storage unit test opens that module."""
 
