@@ -27,11 +27,15 @@ def poco_train(
     tasks: Annotated[int, typer.Option(help="Scanned (shape, size, rotation) tasks in the sample pool.")] = 160,
     samples_per_task: Annotated[int, typer.Option(help="Samples (1-3 view cases) cut from each task.")] = 4,
     synth: Annotated[int, typer.Option(help="Synthetic shapes added to the built-ins.")] = 40,
+    objects: Annotated[
+        Path | None,
+        typer.Option("--objects", help="Objects file whose watertight meshes join the training shapes (real scans)."),
+    ] = None,
     threads: Annotated[int, typer.Option(help="torch threads.")] = 1,
     checkpoint_every: Annotated[int, typer.Option(help="Steps between validation + checkpoints.")] = 100,
     max_minutes: Annotated[float | None, typer.Option(help="Stop (with a checkpoint) after this wall time.")] = None,
 ) -> None:
-    """Train a POCO network on the project's own shapes (built-ins + synthetic), resumable."""
+    """Train a POCO network on the built-ins, synthetic shapes and an objects file's watertight meshes, resumable."""
     from datagen.training.poco_train import TrainOptions, train
 
     with user_errors():
@@ -45,6 +49,7 @@ def poco_train(
             tasks=tasks,
             samples_per_task=samples_per_task,
             synth=synth,
+            objects=objects,
             threads=threads,
             checkpoint_every=checkpoint_every,
             resume=resume,

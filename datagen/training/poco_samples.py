@@ -1,7 +1,8 @@
-"""Training examples of our own POCO weights, made from the project's own shapes.
+"""Training examples of our own POCO weights.
 
-Data comes only from the project's own shapes (built-ins and ``objects synth`` meshes). A sample is
-built exactly as the refiner sees a case at inference (`datagen.pipeline.refine.poco.inputs`):
+Shapes: the built-ins, ``objects synth`` meshes and, optionally, the watertight meshes of an objects
+file (`objects_file_specs`: real scans; an open mesh has no inside, so no labels, and is left out).
+A sample is built exactly as the refiner sees a case at inference (`datagen.pipeline.refine.poco.inputs`):
 
 - a random shape prepared at a random size in [0.05, 0.15] m, a random task rotation, ``scan_task``
   once per (shape, rotation); 1-3 random views combined with `Observation.combine`;
@@ -44,9 +45,13 @@ BOX_FRACTION = 0.1
 SIZE_RANGE = (0.05, 0.15)
 
 
-def training_specs(synth_objects: Path | None = None) -> list[tuple[str, str, bytes | None]]:
-    """(name, source, mesh bytes or None for built-ins) of every training shape."""
-    shapes: list[tuple[str, str, bytes | None]] = [(n, BUILTIN_PREFIX + n, None) for n in builtins.builtin_names()]
+ShapeSource = tuple[str, str, bytes | None]
+"""(name, source, mesh bytes or None for a built-in) of one training shape."""
+
+
+def training_specs(synth_objects: Path | None = None) -> list[ShapeSource]:
+    """The built-ins, then the synthetic listing's meshes (`objects_file_specs` adds an objects file's)."""
+    shapes: list[ShapeSource] = [(n, BUILTIN_PREFIX + n, None) for n in builtins.builtin_names()]
     if synth_objects is not None:
         folder = synth_objects.parent
         for line in synth_objects.read_text().splitlines():
@@ -56,6 +61,39 @@ def training_specs(synth_objects: Path | None = None) -> list[tuple[str, str, by
             path = (folder / line.split()[0]).resolve()
             shapes.append((path.stem, str(path), path.read_bytes()))
     return shapes
+
+
+@dataclass(frozen=True)
+class ListedShapes:
+    """The shapes of an objects file that can be labelled, and why each other line cannot."""
+
+    kept: list[ShapeSource]
+    left_out: list[str]
+    """One line each: an unreadable line, a built-in (already in the pool) or an open mesh."""
+
+
+def objects_file_specs(objects: Path, config: GenerationConfig | None = None) -> ListedShapes:
+    """The watertight meshes of an objects file, by their listed names (real scans for training).
+
+    Labels are ``mesh.contains`` of query centres, defined only inside a closed surface, so an open
+    mesh is left out rather than labelled by a guess; each one is named in ``left_out``.
+    """
+    from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
+
+    config = config or GenerationConfig()
+    kept: list[ShapeSource] = []
+    left_out: list[str] = []
+    with single_threaded_blas():
+        for entry in read_objects_file(objects).entries:
+            if isinstance(entry, ObjectLineError):
+                left_out.append(str(entry))
+            elif entry.is_builtin:
+                left_out.append(f"{entry.name}: a built-in, already a training shape")
+            elif not prepare_object(entry, config).watertight:
+                left_out.append(f"{entry.name}: open mesh (not watertight), no inside to label")
+            else:
+                kept.append((entry.name, entry.source, Path(entry.source).read_bytes()))
+    return ListedShapes(kept, left_out)
 
 
 def sized_spec(name: str, source: str, data: bytes | None, size: float) -> ObjectSpec:

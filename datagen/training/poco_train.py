@@ -32,6 +32,7 @@ from datagen.training.poco_samples import (
     Sample,
     generate_pool,
     load_pool,
+    objects_file_specs,
     save_pool,
     split_pool,
     training_specs,
@@ -100,6 +101,8 @@ class TrainOptions:
     samples_per_task: int = 4
     synth: int = 40
     """Synthetic shapes (objects synth) added to the 22 built-ins."""
+    objects: Path | None = None
+    """An objects file whose watertight meshes join the training shapes (e.g. real scans)."""
     val_fraction: float = 0.1
     checkpoint_every: int = 50
     threads: int = 1
@@ -120,6 +123,12 @@ def build_pool(options: TrainOptions, log: Callable[[str], None] = print) -> lis
 
         synth_list = synthesize(options.synth, options.seed, options.out / "synth")
     shapes = training_specs(synth_list)
+    if options.objects is not None:
+        listed = objects_file_specs(options.objects)
+        for reason in listed.left_out:
+            log(f"pool: left out {reason}")
+        log(f"pool: {len(listed.kept)} shapes of {options.objects} join {len(shapes)} built-in and synthetic ones")
+        shapes.extend(listed.kept)
     started = time.perf_counter()
 
     def report(done: int, total: int, name: str) -> None:

@@ -173,6 +173,10 @@ def test_preset_counts() -> None:
         hidden = PRESETS[base].hidden
         assert counts[f"{base}_sv"] - counts[base] == 3 * hidden * 16
     assert counts["tiny"] < counts["small"] < counts["official"]
+    # fast differs from small only in what is not a weight (K, input points): small's weights load into it
+    assert counts["fast_sv"] == counts["small_sv"]
+    fast = PocoModel(get_preset("fast_sv"))
+    fast.load_state_dict(PocoModel(get_preset("small_sv")).state_dict(), strict=True)
     with pytest.raises(ValueError):
         get_preset("nope")
     with pytest.raises(ValueError):
