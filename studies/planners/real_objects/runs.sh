@@ -36,6 +36,8 @@ recipe() {  # the osvp train arguments of a run, by name
     # and seed, each validated on its own labels of the same held-out training objects (--split objects)
     cover-none-4k) echo "--data $work/real-train-none --network osvp --target mincover --steps 4000 --split objects --val-fraction 0.1" ;;
     cover-poco-4k) echo "--data $work/real-train-poco --network osvp --target mincover --steps 4000 --split objects --val-fraction 0.1" ;;
+    # the paper's setting at the twins' steps: 8 rotations of POCO labels against cover-poco-r1-2k's one
+    cover-poco-2k) echo "--data $work/real-train-poco --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1" ;;
     # the same comparison on the one-rotation twins (twins.sh: the CPU of a POCO dataset at 8 rotations
     # is 4.7 hours on 2 cores; one rotation of the same 171 objects is an eighth of it)
     cover-none-r1-2k) echo "--data $work/real-train-none-r1 --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1" ;;
