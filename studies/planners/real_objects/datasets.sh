@@ -27,6 +27,7 @@ grep -v '^#' "$work/synth/objects.txt" | head -200 > "$work/synth/objects-200.tx
 submit --objects "$work/synth/objects-200.txt" --config "$work/synth.toml" --out "$work/synth200-none"
 submit --objects "$work/synth/objects.txt" --config "$work/synth.toml" --out "$work/synth1000-none"
 submit --objects "$here/train.txt" --out "$work/real-train-poco"
+datagen shards card "$work/real-train-poco" --objects "$here/train.txt"  # its card: the corpus's sources and licences
 relabel() { datagen shards relabel "$work/$1" --out "$work/$2" "${@:3}"; }  # resumes a stopped relabel
 relabel real-train-none real-train-none-tau90 --objective partial_cover --tau 0.9 --workers 2
 relabel real-val-none real-val-none-tau90 --objective partial_cover --tau 0.9 --workers 2
