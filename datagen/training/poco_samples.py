@@ -78,6 +78,7 @@ def objects_file_specs(objects: Path, config: GenerationConfig | None = None) ->
     Labels are ``mesh.contains`` of query centres, defined only inside a closed surface, so an open
     mesh is left out rather than labelled by a guess; each one is named in ``left_out``.
     """
+    from datagen.errors import ObjectError
     from datagen.pipeline.objects.objects_file import ObjectLineError, read_objects_file
 
     config = config or GenerationConfig()
@@ -87,12 +88,19 @@ def objects_file_specs(objects: Path, config: GenerationConfig | None = None) ->
         for entry in read_objects_file(objects).entries:
             if isinstance(entry, ObjectLineError):
                 left_out.append(str(entry))
-            elif entry.is_builtin:
+                continue
+            if entry.is_builtin:
                 left_out.append(f"{entry.name}: a built-in, already a training shape")
-            elif not prepare_object(entry, config).watertight:
-                left_out.append(f"{entry.name}: open mesh (not watertight), no inside to label")
-            else:
+                continue
+            try:
+                watertight = prepare_object(entry, config).watertight
+            except ObjectError as error:  # a corrupt or empty mesh: its one line, the rest go on
+                left_out.append(str(error))
+                continue
+            if watertight:
                 kept.append((entry.name, entry.source, Path(entry.source).read_bytes()))
+            else:
+                left_out.append(f"{entry.name}: open mesh (not watertight), no inside to label")
     return ListedShapes(kept, left_out)
 
 

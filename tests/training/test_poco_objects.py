@@ -1,8 +1,8 @@
 """Real meshes in POCO's training pool (`datagen poco train --objects`).
 
 An objects file's watertight meshes join the pool under their listed names; an open mesh (no inside,
-so no labels), a built-in (already a training shape) and an unreadable line are each left out with
-one line saying why. The labels of a joined sphere are checked against the analytic inside of the
+so no labels), a built-in (already a training shape), a corrupt mesh and an unreadable line are each
+left out with one line saying why. The labels of a joined sphere are checked against the analytic inside of the
 sphere fitted to its observed surface.
 """
 
@@ -26,7 +26,8 @@ def listing(tmp_path: Path) -> Path:
     open_box = trimesh.creation.box(extents=(0.08, 0.06, 0.05))
     open_box.update_faces(np.arange(len(open_box.faces)) > 1)  # one side removed
     open_box.export(tmp_path / "open_box.ply")
-    text = "ball.ply name=scan-ball\nopen_box.ply\nbuiltin:mug\nmissing.ply\n"
+    (tmp_path / "broken.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nend_header\n0 0\n")
+    text = "ball.ply name=scan-ball\nopen_box.ply\nbuiltin:mug\nmissing.ply\nbroken.ply\n"
     (tmp_path / "objects.txt").write_text(text)
     return tmp_path / "objects.txt"
 
@@ -37,10 +38,11 @@ def test_only_watertight_meshes_join_and_each_other_line_says_why(listing: Path)
     _, source, data = listed.kept[0]
     assert Path(source) == listing.parent / "ball.ply" and data == Path(source).read_bytes()
     reasons = "\n".join(listed.left_out)
-    assert len(listed.left_out) == 3
+    assert len(listed.left_out) == 4
     assert "open_box: open mesh" in reasons
     assert "mug: a built-in" in reasons
     assert "missing.ply" in reasons
+    assert "broken.ply" in reasons
 
 
 def test_a_joined_mesh_is_labelled_by_its_inside(listing: Path) -> None:

@@ -76,8 +76,8 @@ TINY = PocoPreset(name="tiny", hidden=8, latent=16, decoder_k=16, heads=4, num_i
 
 FAST = PocoPreset(name="fast", hidden=16, latent=16, decoder_k=16, heads=8, num_input_points=1500, num_queries=2048)
 """``small`` with half its decoder neighbours (K 16) and half its encoder input (1,500 points): the
-same weight shapes, so ``small`` weights start its training (`datagen poco train --init`), at about
-0.55x of ``small``'s refinement CPU (random weights, 3 built-ins, 2-core machine; issue 50)."""
+same weight shapes, so ``small`` weights start its training (`datagen poco train --init`), at 0.52x
+of ``small``'s refinement CPU (benchmarks/generation/results/task-cost-v4.md; issue 50)."""
 
 PRESETS: dict[str, PocoPreset] = {
     p.name: p for base in (OFFICIAL, SMALL, TINY, FAST) for p in (base, base.with_directions())
