@@ -15,6 +15,7 @@ import hashlib
 import importlib.util
 import json
 import math
+from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -33,7 +34,8 @@ GENERATED_VIEW_SPACE = "generated"
 BUILTIN_POCO_WEIGHTS = "builtin"
 BUILTIN_POCO_WEIGHTS_FILE: Path | None = None
 """The shipped weights' path when set (tests point it at a copy); otherwise `builtin_poco_weights`
-finds ``datagen/data/poco_small.pt`` beside the installed datagen package."""
+finds the ``poco_version``'s file (`PocoVersion.weights_file`) in ``datagen/data`` beside the installed
+datagen package."""
 
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 
@@ -106,10 +108,32 @@ class ViewSpaceConfig(_Frozen):
 DEFAULT_COVER_CAP = 1024
 """Minimum covers listed per sample by default (schema version 2)."""
 
+
+@dataclass(frozen=True)
+class PocoVersion:
+    """What a ``poco_version`` ships beside its computation (the neighbour search of each version is
+    `datagen.pipeline.refine.poco.refiner.KNN_BACKENDS`'s): the file ``poco_weights = "builtin"``
+    loads, and the preset and threshold a config takes unless it names its own."""
+
+    weights_file: str
+    """In ``datagen/data``."""
+    preset: str
+    threshold: float
+
+
+POCO_VERSIONS: dict[int, PocoVersion] = {
+    1: PocoVersion("poco_small.pt", "small_sv", 0.65),
+    2: PocoVersion("poco_small.pt", "small_sv", 0.65),
+    3: PocoVersion("poco_small.pt", "small_sv", 0.65),
+    4: PocoVersion("poco_fast.pt", "fast_sv", 0.375),
+}
+"""Versions 1-3 change only the neighbour search of the network trained on synthetic shapes; version 4
+is the `fast_sv` network (decoder K 16, 1,500 encoder points) trained on real scans too
+(datagen/data/POCO_MODEL_CARD.md), with version 2's search."""
 LATEST_POCO_VERSION = 2
 """The newest ``poco_version`` whose labels were judged against version 1's (docs/pipeline.md section
 4.1): what a new config uses unless told."""
-NEWEST_POCO_VERSION = 3
+NEWEST_POCO_VERSION = max(POCO_VERSIONS)
 """The newest ``poco_version`` there is; those above `LATEST_POCO_VERSION` are chosen by name only."""
 
 FIELDS_ADDED_LATER: dict[str, object] = {
@@ -171,10 +195,13 @@ class GenerationConfig(_Frozen):
     and any installed plug-in)."""
     band: PositiveFloat = 0.01
     poco_preset: str = "small_sv"
+    """The network's architecture; unless given, the ``poco_version``'s (`POCO_VERSIONS`)."""
     poco_weights: str = BUILTIN_POCO_WEIGHTS
-    """'builtin' (the shipped datagen/data/poco_small.pt) or the path of a weights file."""
+    """'builtin' (the ``poco_version``'s shipped file: datagen/data/poco_small.pt, for version 4
+    poco_fast.pt) or the path of a weights file."""
     poco_threshold: float = Field(0.65, gt=0.0, lt=1.0, allow_inf_nan=False)
-    """p(inside) above which a queried band key is kept (tuned on training shapes)."""
+    """p(inside) above which a queried band key is kept (tuned on held-out training shapes); unless
+    given, the ``poco_version``'s."""
     finetune_steps: int = Field(0, ge=0, le=1000, strict=True)
     poco_version: int = Field(LATEST_POCO_VERSION, ge=1, le=NEWEST_POCO_VERSION, strict=True)
     """Which computation of the ``poco`` refiner defines R(O) (`datagen.pipeline.refine.poco.refiner`):
@@ -182,8 +209,10 @@ class GenerationConfig(_Frozen):
     neighbour table from pykdtree instead of scipy's cKDTree, ~13 % less refinement CPU. The two
     searches break ties between equidistant input points differently, which flips ~1 % of the keys
     of R(O); 3, every neighbour table with one defined answer (nearest first, ties by index:
-    `spatial.knn_ordered`), searched on the refiner's device, so a GPU's R(O) is the CPU's. A new
-    config takes the newest judged version (`LATEST_POCO_VERSION`); a stored one keeps its own."""
+    `spatial.knn_ordered`), searched on the refiner's device, so a GPU's R(O) is the CPU's; 4,
+    version 2's search with another network (`POCO_VERSIONS`: the fast_sv preset, weights trained on
+    real scans too, threshold 0.375), about half version 2's refinement CPU. A new config takes the
+    newest judged version (`LATEST_POCO_VERSION`); a stored one keeps its own."""
     poisson_depth: int = Field(8, ge=5, le=12, strict=True)
     """Octree depth of the ``poisson`` refiner (2**depth cells across the observed cloud's box)."""
     # Section 5: filter
@@ -216,6 +245,19 @@ class GenerationConfig(_Frozen):
     """'max_coverage': most views a label may hold beyond the input views."""
     label_tau: float = Field(0.9, gt=0.0, le=1.0, allow_inf_nan=False)
     """'partial_cover': the share of what all views see that input and label must see together."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _poco_version_defaults(cls, data: Any) -> Any:
+        """The preset and threshold the config does not name are its ``poco_version``'s, so a version
+        brings its network whole and ``poco_version = 2`` alone goes back to version 2's."""
+        if not isinstance(data, dict):
+            return data
+        number = data.get("poco_version", LATEST_POCO_VERSION)
+        version = POCO_VERSIONS.get(number) if isinstance(number, int) else None
+        if version is None:
+            return data  # the field's own check names the allowed range
+        return {"poco_version": number, "poco_preset": version.preset, "poco_threshold": version.threshold, **data}
 
     @field_validator("grid_offset")
     @classmethod
@@ -303,7 +345,9 @@ class GenerationConfig(_Frozen):
 
     def poco_weights_path(self) -> Path:
         """The weights file the ``poco`` refiner loads."""
-        return builtin_poco_weights() if self.poco_weights == BUILTIN_POCO_WEIGHTS else Path(self.poco_weights)
+        if self.poco_weights == BUILTIN_POCO_WEIGHTS:
+            return builtin_poco_weights(self.poco_version)
+        return Path(self.poco_weights)
 
     def canonical_dict(self) -> dict[str, Any]:
         """The config as plain data with files replaced by the sha256 of their content.
@@ -348,9 +392,9 @@ def canonical_json(data: Any) -> str:
     return json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
 
-def builtin_poco_weights() -> Path:
-    """The POCO weights shipped with datagen (``datagen/data/poco_small.pt``), found without
-    importing datagen (`BUILTIN_POCO_WEIGHTS_FILE` overrides)."""
+def builtin_poco_weights(version: int = 1) -> Path:
+    """The POCO weights shipped with datagen for a ``poco_version`` (``datagen/data/poco_small.pt`` for
+    versions 1-3), found without importing datagen (`BUILTIN_POCO_WEIGHTS_FILE` overrides)."""
     if BUILTIN_POCO_WEIGHTS_FILE is not None:
         return BUILTIN_POCO_WEIGHTS_FILE
     spec = importlib.util.find_spec("datagen")
@@ -359,7 +403,7 @@ def builtin_poco_weights() -> Path:
             "poco_weights = 'builtin' needs the datagen package, which is not installed here; "
             "set poco_weights to a weights file"
         )
-    return Path(next(iter(spec.submodule_search_locations))) / "data" / "poco_small.pt"
+    return Path(next(iter(spec.submodule_search_locations))) / "data" / POCO_VERSIONS[version].weights_file
 
 
 def file_sha256(path: Path) -> str:

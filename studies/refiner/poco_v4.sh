@@ -1,10 +1,15 @@
 #!/usr/bin/env bash
 # POCO version 4's candidate weights (issue 50), trained and judged into WORK (default ../real-work):
 #   poco_v4.sh WORK train [MINUTES]   train (resumable: run again to continue; MINUTES a call, default 45)
-#                                     and export studies/refiner/weights/poco_fast.pt
+#                                     and export datagen/data/poco_fast.pt (poco_version 4's weights)
 #   poco_v4.sh WORK judge             results/poco-v4-eval-{test,six}.md: `datagen poco eval` of version 2's
 #                                     weights and the candidate on objects neither saw; and
 #                                     benchmarks/generation/results/task-cost-v4.md: both in one task_cost run
+#   poco_v4.sh WORK planners          the labels and the planners they train, against version 2's:
+#                                     studies/labels/results/version-labels-4.md (the oracle, two seeds) and
+#                                     results/planners-v4-{v2,v4}.md (the one-shot planner trained at two seeds
+#                                     on each version's cover labels of the 171 training objects at one
+#                                     rotation, judged on the real test split); resumable
 # The candidate: the `fast_sv` preset (decoder K 16, 1,500 encoder input points; small_sv's weight
 # shapes), started from the shipped version-2 weights and trained on the 22 built-ins, 40 synthetic
 # shapes and the watertight meshes of the real-object split's training objects
@@ -15,7 +20,7 @@ root="$(cd "$here/../.." && pwd)"
 work="${1:-$root/../real-work}"
 phase="${2:-train}"
 run="$work/poco-v4"
-weights="$here/weights/poco_fast.pt"
+weights="$root/datagen/data/poco_fast.pt"  # a new export is another file: version 4's sha256 is pinned (tests/pipeline/test_poco_version_4.py)
 split="$root/studies/planners/real_objects"
 
 train() {
@@ -25,7 +30,6 @@ train() {
   datagen poco train --out "$run" --preset fast_sv --seed 4 --tasks 480 --samples-per-task 4 --synth 40 \
     --objects "$split/train.txt" --steps 100000 --threads 1 \
     --checkpoint-every 100 --max-minutes "${1:-45}" "${init[@]}" "${resume[@]}"
-  mkdir -p "$here/weights"
   echo "== $(date -u +%FT%TZ) export"
   datagen poco export --run "$run" --out "$weights" --seed 4
 }
@@ -53,8 +57,8 @@ eval_report() {  # $1 objects file, $2 report
 
 judge() {
   local cut; cut="$(threshold)"
-  printf 'poco_weights = "%s"\npoco_preset = "fast_sv"\npoco_threshold = %s\n' "$weights" "$cut" > "$work/poco-v4.toml"
-  : > "$work/poco-v2.toml"
+  printf 'poco_version = 4\n' > "$work/poco-v4.toml"  # its weights, preset fast_sv and threshold (schemas.config.POCO_VERSIONS)
+  printf 'poco_version = 2\n' > "$work/poco-v2.toml"
   echo "== $(date -u +%FT%TZ) eval"
   eval_report "$split/test.txt" "$here/results/poco-v4-eval-test.md"
   eval_report "$root/examples/watertight-meshes.txt" "$here/results/poco-v4-eval-six.md"
@@ -64,9 +68,31 @@ judge() {
     --out benchmarks/generation/results/task-cost-v4.md --replace)
 }
 
+planners() {
+  local real="$root/studies/planners/real_objects"
+  echo "== $(date -u +%FT%TZ) labels"
+  (cd "$root" && python -m studies.labels.version_labels --versions 2 4 --seeds 0 1 --workers 2) > "$work/version-labels-4.txt"
+  echo "== $(date -u +%FT%TZ) datasets"
+  bash "$real/twins.sh" "$work"  # real-train-{none,poco,poco4}-r1
+  echo "== $(date -u +%FT%TZ) trainings"
+  bash "$real/runs.sh" "$work" cover-poco-r1-2k cover-poco-r1-2k-s1 cover-poco4-r1-2k cover-poco4-r1-2k-s1
+  echo "== $(date -u +%FT%TZ) judge"
+  local version
+  for version in 2 4; do  # each version's planners are played with the refiner that made their labels
+    printf 'poco_version = %s\n' "$version" > "$work/poco$version.toml"
+    local suffix=""; [ "$version" = 4 ] && suffix=4
+    (cd "$root" && python -m studies.planners.real_objects.judge --set test --fixed-from "$work/real-train-none-r1" \
+      --planner "v$version-seed0=osvp:$work/runs/cover-poco$suffix-r1-2k/best.pt" \
+      --planner "v$version-seed1=osvp:$work/runs/cover-poco$suffix-r1-2k-s1/best.pt" \
+      --config "$work/poco$version.toml" --work "$work/judge" --workers 2 \
+      --out "studies/refiner/results/planners-v4-v$version.md" --replace)
+  done
+}
+
 case "$phase" in
   train) train "${3:-45}" ;;
   judge) judge ;;
-  *) echo "usage: poco_v4.sh WORK train [MINUTES] | judge" >&2; exit 2 ;;
+  planners) planners ;;
+  *) echo "usage: poco_v4.sh WORK train [MINUTES] | judge | planners" >&2; exit 2 ;;
 esac
 echo "== $(date -u +%FT%TZ) done"

@@ -325,8 +325,10 @@ def test_poco_version_enters_the_config_hash() -> None:
     third = GenerationConfig(poco_version=3)  # chosen by name, not the default
     assert third.canonical_dict()["poco_version"] == 3
     assert third.config_hash() not in (first.config_hash(), second.config_hash())
+    fourth = GenerationConfig(poco_version=4)  # another network (schemas.config.POCO_VERSIONS)
+    assert fourth.config_hash() not in (first.config_hash(), second.config_hash(), third.config_hash())
     with pytest.raises(ValidationError):
-        GenerationConfig(poco_version=4)
+        GenerationConfig(poco_version=5)
 
 
 def test_poco_version_2_needs_pykdtree(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -593,17 +593,49 @@ def test_poco_version_changes_only_a_poco_datasets_identity() -> None:
     assert GenerationConfig(poco_version=3).config_hash() != GenerationConfig(poco_version=2).config_hash()
 
 
-def test_poco_version_3_is_chosen_by_name_and_no_version_past_it_exists() -> None:
-    """Version 3 (ordered neighbour tables) is there to be asked for; a new config still takes the newest
-    judged one, and a version that does not exist is refused by the config."""
+def test_poco_versions_past_the_judged_one_are_chosen_by_name_and_none_past_the_newest_exists() -> None:
+    """Versions 3 (ordered neighbour tables) and 4 (the fast network) are there to be asked for; a new
+    config still takes the newest judged one, and a version that does not exist is refused by the
+    config in the field's own words."""
     from pydantic import ValidationError
 
-    from schemas.config import LATEST_POCO_VERSION, NEWEST_POCO_VERSION
+    from schemas.config import LATEST_POCO_VERSION, NEWEST_POCO_VERSION, POCO_VERSIONS
 
-    assert NEWEST_POCO_VERSION == 3 > LATEST_POCO_VERSION == GenerationConfig().poco_version
+    assert sorted(POCO_VERSIONS) == list(range(1, NEWEST_POCO_VERSION + 1))
+    assert NEWEST_POCO_VERSION == 4 > LATEST_POCO_VERSION == GenerationConfig().poco_version
     assert GenerationConfig(poco_version=3).poco_version == 3
-    with pytest.raises(ValidationError, match="poco_version"):
-        GenerationConfig(poco_version=4)
+    for wrong in (NEWEST_POCO_VERSION + 1, 0, "4"):
+        with pytest.raises(ValidationError, match="poco_version"):
+            GenerationConfig(poco_version=wrong)
+
+
+def test_a_poco_version_brings_its_preset_threshold_and_weights_unless_the_config_names_them() -> None:
+    """`POCO_VERSIONS`: version 4 is the fast_sv network at its own threshold and shipped file; naming
+    version 2 alone goes back to version 2's whole network; a named preset or threshold is kept; and the
+    earlier versions' configs hash as they did (the recorded hashes below)."""
+    from schemas.config import POCO_VERSIONS, builtin_poco_weights, file_sha256
+
+    fourth = GenerationConfig(poco_version=4)
+    assert (fourth.poco_preset, fourth.poco_threshold) == ("fast_sv", 0.375)
+    assert fourth.poco_weights == "builtin" and fourth.poco_weights_path() == builtin_poco_weights(4)
+    assert builtin_poco_weights(4).name == "poco_fast.pt" != builtin_poco_weights(2).name == "poco_small.pt"
+    for version in (1, 2, 3):
+        config = GenerationConfig(poco_version=version)
+        assert (
+            (config.poco_preset, config.poco_threshold)
+            == ("small_sv", 0.65)
+            == (
+                POCO_VERSIONS[version].preset,
+                POCO_VERSIONS[version].threshold,
+            )
+        )
+    assert GenerationConfig(poco_version=4, poco_threshold=0.5).poco_threshold == 0.5
+    assert GenerationConfig(poco_version=4, poco_preset="small_sv").poco_preset == "small_sv"
+    assert GenerationConfig(poco_version=2, poco_preset="fast_sv").poco_threshold == 0.65
+    data = fourth.canonical_dict()
+    assert (data["poco_version"], data["poco_preset"], data["poco_threshold"]) == (4, "fast_sv", 0.375)
+    assert data["poco_weights"] == "sha256:" + file_sha256(builtin_poco_weights(4))
+    assert fourth.config_hash() not in {GenerationConfig(poco_version=v).config_hash() for v in (1, 2, 3)}
 
 
 @pytest.mark.parametrize(

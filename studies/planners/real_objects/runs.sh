@@ -42,6 +42,10 @@ recipe() {  # the osvp train arguments of a run, by name
     # is 4.7 hours on 2 cores; one rotation of the same 171 objects is an eighth of it)
     cover-none-r1-2k) echo "--data $work/real-train-none-r1 --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1" ;;
     cover-poco-r1-2k) echo "--data $work/real-train-poco-r1 --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1" ;;
+    # POCO version 4's labels of the same cases against version 2's (issue 50), at two seeds each
+    cover-poco4-r1-2k) echo "--data $work/real-train-poco4-r1 --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1" ;;
+    cover-poco-r1-2k-s1) echo "--data $work/real-train-poco-r1 --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1 --seed 1" ;;
+    cover-poco4-r1-2k-s1) echo "--data $work/real-train-poco4-r1 --network osvp --target mincover --steps 2000 --split objects --val-fraction 0.1 --seed 1" ;;
     *) echo "unknown run $1" >&2; return 1 ;;
   esac
 }

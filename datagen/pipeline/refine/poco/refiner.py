@@ -32,6 +32,10 @@ every latent, and pykdtree there would flip ~7 % for another 2 % of CPU. Version
 one defined answer (nearest first, equal distances by index, `spatial.knn_ordered`) and searches on
 the refiner's device: a k-d tree's candidates ordered exactly on the CPU, every distance on a GPU, the
 same tables both ways, so a GPU run's R(O) is the CPU's up to the network's own float rounding.
+Version 4 keeps version 2's search and changes the network (`schemas.config.POCO_VERSIONS`): the
+``fast_sv`` preset (decoder K 16, 1,500 encoder points) with weights trained on real scans as well
+(``datagen/data/poco_fast.pt``, threshold 0.375), about half version 2's refinement CPU; version 3's
+search would cost it 1.35x again on the CPU, so a GPU run of version 4 is not the CPU's bit for bit.
 
 Optional test-time fine-tuning (``finetune_steps`` > 0; AIR used 10, the default here is 0): a copy
 of the network takes that many Adam steps (lr 1e-3) on the observation itself, with the observed key
@@ -79,10 +83,11 @@ from schemas.config import GenerationConfig
 
 BUILTIN_WEIGHTS = Path(str(resources.files("datagen"))) / "data" / "poco_small.pt"
 FINETUNE_QUERIES = 4096
-KNN_BACKENDS: dict[int, KnnBackend] = {1: "auto", 2: "pykdtree", 3: "ordered"}
-"""The neighbour search of each ``poco_version``: versions 1 and 2 name the decoder table's ("auto" is
-scipy's cKDTree; the encoder's are cKDTree's, every table built on the CPU); version 3's "ordered" is
-every table's, on the refiner's device (`spatial.knn_ordered`)."""
+KNN_BACKENDS: dict[int, KnnBackend] = {1: "auto", 2: "pykdtree", 3: "ordered", 4: "pykdtree"}
+"""The neighbour search of each ``poco_version``: versions 1, 2 and 4 name the decoder table's ("auto"
+is scipy's cKDTree; the encoder's are cKDTree's, every table built on the CPU); version 3's "ordered"
+is every table's, on the refiner's device (`spatial.knn_ordered`). What else a version brings (its
+weights, preset and threshold) is `schemas.config.POCO_VERSIONS`'s."""
 
 
 def weights_sha256(path: Path) -> str:
