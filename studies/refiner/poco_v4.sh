@@ -7,7 +7,7 @@
 #                                     benchmarks/generation/results/task-cost-v4.md: both in one task_cost run
 #   poco_v4.sh WORK planners          the labels and the planners they train, against version 2's:
 #                                     studies/labels/results/version-labels-4.md (the oracle, two seeds) and
-#                                     results/planners-v4-{v2,v4}.md (the one-shot planner trained at two seeds
+#                                     results/poco-v4-planners-{v2,v4}.md (the one-shot planner trained at two seeds
 #                                     on each version's cover labels of the 171 training objects at one
 #                                     rotation, judged on the real test split); resumable
 # The candidate: the `fast_sv` preset (decoder K 16, 1,500 encoder input points; small_sv's weight
@@ -85,7 +85,7 @@ planners() {
       --planner "v$version-seed0=osvp:$work/runs/cover-poco$suffix-r1-2k/best.pt" \
       --planner "v$version-seed1=osvp:$work/runs/cover-poco$suffix-r1-2k-s1/best.pt" \
       --config "$work/poco$version.toml" --work "$work/judge" --workers 2 \
-      --out "studies/refiner/results/planners-v4-v$version.md" --replace)
+      --out "studies/refiner/results/poco-v4-planners-v$version.md" --replace)
   done
 }
 
