@@ -8,21 +8,19 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from support.engine import planned_tasks
+from support.engine import QueuedJob, planned_tasks, queued_job
 from typer.testing import CliRunner
 
 from datagen import api
 from datagen.cli import common
 from datagen.cli.main import app
-from datagen.config_io import load_config
 from datagen.engine import driver as driver_module
-from datagen.engine.driver import dataset_info
 from datagen.engine.worker import execute_task
 from datagen.settings import RunSettings
 from jobs.ledger import FAILED
 from schemas import config as config_module
 from schemas.jobs import JobSpec
-from storage import init_dataset, open_location, read_commit, read_failures, read_info
+from storage import open_location, read_commit, read_failures, read_info
 
 
 def upgraded_weights(tmp_path: Path) -> Path:
@@ -36,22 +34,15 @@ def upgraded_weights(tmp_path: Path) -> Path:
 
 
 @pytest.fixture
-def poco_job(tmp_path: Path):
+def poco_job(tmp_path: Path) -> QueuedJob:
     """A queued poco job whose dataset the first run made with the shipped weights."""
-    objects = tmp_path / "objects.txt"
-    objects.write_text("builtin:capsule\n")
-    config = tmp_path / "poco.toml"
-    config.write_text('rotations = 1\nrefiner = "poco"\npoco_weights = "builtin"\n')
-    home = tmp_path / "home"
-    job = api.enqueue(objects, config, RunSettings(home=home, out=str(tmp_path / "out")))
-    info = init_dataset(open_location(job.out), dataset_info(load_config(config)))
-    return home, job, info
+    return queued_job(tmp_path, 'rotations = 1\nrefiner = "poco"\npoco_weights = "builtin"\n')
 
 
 def test_resume_refuses_a_dataset_made_with_other_builtin_weights(
-    tmp_path: Path, poco_job, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, poco_job: QueuedJob, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    home, job, made = poco_job
+    home, job, made = poco_job.home, poco_job.job, poco_job.made
     new = upgraded_weights(tmp_path)
     monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", new)
 
@@ -74,9 +65,9 @@ def test_resume_refuses_a_dataset_made_with_other_builtin_weights(
 
 
 def test_a_worker_with_other_weights_fails_its_task_instead_of_mixing(
-    tmp_path: Path, poco_job, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, poco_job: QueuedJob, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    home, job, made = poco_job
+    home, job, made = poco_job.home, poco_job.job, poco_job.made
     spec = JobSpec.model_validate(job.spec)
     (task,) = planned_tasks(home, job.job_id)
     monkeypatch.setattr(config_module, "BUILTIN_POCO_WEIGHTS_FILE", upgraded_weights(tmp_path))

@@ -9,15 +9,13 @@ import json
 from pathlib import Path
 
 import pytest
-from support.engine import planned_tasks
+from support.engine import planned_tasks, queued_job
 from typer.testing import CliRunner
 
-from datagen import api
 from datagen.cli import common
 from datagen.cli import jobs as jobs_cli
 from datagen.cli.main import app
 from datagen.engine import driver as driver_module
-from datagen.engine.driver import dataset_info
 from datagen.engine.job_plan import JobPlan
 from datagen.engine.worker import execute_task
 from datagen.inspection.stats import dataset_stats
@@ -26,7 +24,7 @@ from datagen.settings import RunSettings, ledger_for
 from jobs.ledger import Job
 from schemas.index import INDEX_SCHEMA, TASK_STEPS, CommitRecord
 from schemas.jobs import JobSpec
-from storage import ShardReader, init_dataset, open_dataset, open_location, read_commit
+from storage import ShardReader, open_dataset, open_location, read_commit
 
 TOLERANCE = 0.05
 """Seconds the steps may exceed the task's total by (clock reads between them)."""
@@ -35,16 +33,9 @@ TOLERANCE = 0.05
 @pytest.fixture(scope="module")
 def written(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, JobPlan, Path]:
     """One job of two capsule tasks (refiner none), both executed in this process; (out, plan, home)."""
-    folder = tmp_path_factory.mktemp("timed")
-    objects = folder / "objects.txt"
-    objects.write_text("builtin:capsule\n")
-    config = folder / "two.toml"
-    config.write_text('rotations = 2\nrefiner = "none"\n')
-    home = folder / "home"
-    job = api.enqueue(objects, config, RunSettings(home=home, out=str(folder / "out")))
+    queued = queued_job(tmp_path_factory.mktemp("timed"), 'rotations = 2\nrefiner = "none"\n')
+    job, home = queued.job, queued.home
     plan = JobPlan(JobSpec.model_validate(job.spec), planned_tasks(home, job.job_id))
-    location = open_location(job.out)
-    init_dataset(location, dataset_info(plan.spec.config))
     for task in plan.tasks:
         outcome = execute_task(task, plan.spec.config, job.out, "a1-test")
         assert outcome.ok, outcome.message

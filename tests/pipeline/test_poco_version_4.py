@@ -21,11 +21,9 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import trimesh  # noqa: E402
-from support.engine import planned_tasks  # noqa: E402
+from support.engine import planned_tasks, queued_job  # noqa: E402
 
 from datagen import api  # noqa: E402
-from datagen.config_io import load_config  # noqa: E402
-from datagen.engine.driver import dataset_info  # noqa: E402
 from datagen.engine.worker import execute_task  # noqa: E402
 from datagen.pipeline.keys import key_centres, unpack_keys  # noqa: E402
 from datagen.pipeline.objects.prepare import prepare_object  # noqa: E402
@@ -39,7 +37,7 @@ from datagen.training.poco_samples import sized_spec  # noqa: E402
 from schemas import config as config_module  # noqa: E402
 from schemas.config import GenerationConfig, builtin_poco_weights  # noqa: E402
 from schemas.jobs import JobSpec  # noqa: E402
-from storage import init_dataset, open_location, read_commit  # noqa: E402
+from storage import open_location, read_commit  # noqa: E402
 
 SHA256 = "2fc73078907398e38e8ab27df268ff497613997e09e85375e6b6e7fc32795b54"
 VERSION_2_SHA256 = "d88c55e35e82"
@@ -85,13 +83,8 @@ def test_a_dataset_keeps_its_poco_version_when_resumed_after_the_default_moved_o
     """A job queued at version 2 (its config named no version), then the default becomes version 4: the
     ledgered job still says version 2 and version 2's network, and its task is refined and committed
     with version 2's weights into the dataset made at version 2, while a new config takes version 4."""
-    objects = tmp_path / "objects.txt"
-    objects.write_text("builtin:capsule\n")
-    toml = tmp_path / "poco.toml"
-    toml.write_text("rotations = 1\n")
-    home = tmp_path / "home"
-    job = api.enqueue(objects, toml, RunSettings(home=home, out=str(tmp_path / "out")))
-    made = init_dataset(open_location(job.out), dataset_info(load_config(toml)))
+    queued = queued_job(tmp_path, "rotations = 1\n")
+    home, job, made = queued.home, queued.job, queued.made
     assert made.config.poco_version == 2
 
     monkeypatch.setattr(config_module, "LATEST_POCO_VERSION", 4)

@@ -23,10 +23,11 @@ import numpy as np
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from jobs.ledger import Job, Ledger, Task
+from schemas.dataset import DatasetInfo
 from schemas.index import VOLATILE_COLUMNS
 from schemas.jobs import TaskSpec
 from schemas.shard import array_names
-from storage import committed_tasks, open_dataset, open_location, validate
+from storage import committed_tasks, init_dataset, open_dataset, open_location, validate
 from storage.shards import ShardReader
 
 LEDGER_FILE = "ledger.db"
@@ -66,6 +67,35 @@ def write_objects(path: Path, lines: Sequence[str]) -> Path:
 
 def builtin_lines(names: Sequence[str]) -> list[str]:
     return [f"builtin:{name}" for name in names]
+
+
+@dataclass(frozen=True)
+class QueuedJob:
+    """A job in a fresh ledger whose dataset the first run has begun, with no task run yet."""
+
+    home: Path
+    job: Job
+    made: DatasetInfo
+    """The dataset's ``dataset.json`` as that first run wrote it."""
+
+
+def queued_job(folder: Path, config_text: str, objects: str = "builtin:capsule\n") -> QueuedJob:
+    """Queue ``objects`` at the config ``config_text`` into ``folder/out`` (ledger ``folder/home``) and
+    write the dataset's ``dataset.json`` as a driver does before it runs tasks, without Ray: a test
+    then runs tasks with `execute_task` or resumes the job as a later release would."""
+    from datagen import api
+    from datagen.config_io import load_config
+    from datagen.engine.driver import dataset_info
+    from datagen.settings import RunSettings
+
+    objects_file = folder / "objects.txt"
+    objects_file.write_text(objects)
+    config = folder / "config.toml"
+    config.write_text(config_text)
+    home = folder / "home"
+    job = api.enqueue(objects_file, config, RunSettings(home=home, out=str(folder / "out")))
+    made = init_dataset(open_location(job.out), dataset_info(load_config(config)))
+    return QueuedJob(home, job, made)
 
 
 def submit_args(inputs: Path, out: str, home: Path) -> list[str]:
