@@ -4,6 +4,7 @@
 # skipped; a killed one resumes from its last.pt. One thread each: two runs side by side on 2 cores.
 set -euo pipefail
 work="${1:?usage: runs.sh WORK [RUN ...]}"; shift
+here="$(cd "$(dirname "$0")" && pwd)"
 runs="$work/runs"; mkdir -p "$runs"
 train_none=("--data" "$work/real-train-none" "--val-data" "$work/real-val-none")
 
@@ -17,6 +18,8 @@ recipe() {  # the osvp train arguments of a run, by name
     scvp-nb-8k)    echo "${train_none[*]} --network scvp --target near_best --steps 8000" ;;
     nbvnet-nb-cb5-8k) echo "${train_none[*]} --network nbvnet --target near_best --steps 8000 --case-balance 0.5" ;;
     scvp-nb-cb5-8k)   echo "${train_none[*]} --network scvp --target near_best --steps 8000 --case-balance 0.5" ;;
+    # shipped:nbv (scvp-nb-8k, its best epoch the last) trained 8,000 steps more at half the learning rate
+    scvp-nb-8k-more)  echo "${train_none[*]} --network scvp --target near_best --steps 8000 --lr 0.0005 --init $here/../../../osvp/src/osvp/shipped/nbv.pt" ;;
     # one-shot planners: partial cover at tau 0.9 (label-margin.md's best one-shot objective)
     pcnbv-nb-8k)   echo "${train_none[*]} --network osvp --target near_best --source observed --steps 8000" ;;
     oneshot-mc-8k) echo "--data $work/real-train-none-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 8000" ;;
