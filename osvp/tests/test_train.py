@@ -99,8 +99,11 @@ def test_checkpoints_that_do_not_fit_or_are_damaged(bank: SampleBank, dataset_ur
         load_checkpoint(garbage)
     truncated = tmp_path / "truncated.pt"
     truncated.write_bytes((tmp_path / "run" / "best.pt").read_bytes()[:5000])
-    with pytest.raises(CheckpointError):
+    with pytest.raises(CheckpointError, match="not a readable osvp checkpoint") as truncated_error:
         load_checkpoint(truncated)
+    line = str(truncated_error.value)
+    assert "\n" not in line and line.endswith("); re-run `osvp train`")
+    assert "If you are seeing this error" not in line  # torch's advice to its developers is cut off
     other = tmp_path / "other.pt"
     torch.save({"weights": torch.zeros(3)}, other)
     with pytest.raises(CheckpointError, match="no 'osvp-checkpoint' marker"):

@@ -136,6 +136,14 @@ def save_checkpoint(path: Path, data: dict[str, Any]) -> None:
     os.replace(temporary, path)
 
 
+def _reason(exc: BaseException, limit: int = 160) -> str:
+    """The first sentence of a loader's error: torch's zip errors run on into advice for its own
+    developers, which a user's one line has no room for."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    text = text.split(". ")[0].rstrip(".")
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def load_checkpoint(path: str | Path) -> Checkpoint:
     path = Path(path)
     if not path.is_file():
@@ -143,8 +151,7 @@ def load_checkpoint(path: str | Path) -> Checkpoint:
     try:
         data = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile, ValueError, OSError) as exc:
-        reason = str(exc).splitlines()[0][:160] if str(exc) else type(exc).__name__
-        raise CheckpointError(f"{path}: not a readable osvp checkpoint ({reason}); re-run `osvp train`") from None
+        raise CheckpointError(f"{path}: not a readable osvp checkpoint ({_reason(exc)}); re-run `osvp train`") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise CheckpointError(f"{path}: not an osvp checkpoint (no '{FORMAT}' marker); give a file from `osvp train`")
     if data.get("version") not in READABLE_VERSIONS:
