@@ -93,6 +93,11 @@ def test_checkpoints_that_do_not_fit_or_are_damaged(bank: SampleBank, dataset_ur
         checkpoint.require(20)
     with pytest.raises(CheckpointError, match="--points"):
         checkpoint.require(32, checkpoint.num_points + 1)
+    unfit = load_checkpoint(tmp_path / "run" / "best.pt")
+    unfit.data["model"].pop(next(iter(unfit.data["model"])))  # weights that no longer fit their network
+    with pytest.raises(CheckpointError, match="its weights do not fit its own preset") as unfit_error:
+        unfit.network()
+    assert "\n" not in str(unfit_error.value)
     garbage = tmp_path / "garbage.pt"
     garbage.write_bytes(b"not a checkpoint at all" * 10)
     with pytest.raises(CheckpointError, match="not a readable osvp checkpoint"):

@@ -109,8 +109,7 @@ class Checkpoint:
         try:
             network.load_state_dict(self.data["model"])
         except RuntimeError as exc:
-            first = str(exc).splitlines()[0]
-            raise CheckpointError(f"{self.path}: its weights do not fit its own preset ({first})") from None
+            raise CheckpointError(f"{self.path}: its weights do not fit its own preset ({_reason(exc)})") from None
         return network.to(device).eval()
 
     def require(self, num_views: int, num_points: int | None = None, what: str = "the dataset") -> None:
