@@ -1,4 +1,4 @@
-"""``osvp train | eval | sweep-lambda``: train the one-shot view planner on a datagen dataset.
+"""``osvp train | eval | ship | soup | sweep-lambda``: train the one-shot view planner on a datagen dataset.
 
 Every user error (a missing or damaged dataset, a checkpoint that does not fit, a bad option) is one
 ``error:`` line on stderr and exit code 2; progress goes to stderr, results to stdout.
@@ -237,6 +237,13 @@ def _parser() -> argparse.ArgumentParser:
     ship_cmd.add_argument("--scores", type=Path, default=None, help="a Markdown file of its scores, for the card")
     ship_cmd.set_defaults(run=_ship)
 
+    soup_cmd = commands.add_parser(
+        "soup", help="average the weights of checkpoints of one network (a run and its fine-tunes) into one"
+    )
+    soup_cmd.add_argument("checkpoints", type=Path, nargs="+", help="two or more checkpoints of one network")
+    soup_cmd.add_argument("--out", type=Path, required=True, help="the soup's checkpoint file")
+    soup_cmd.set_defaults(run=_soup)
+
     sweep_cmd = commands.add_parser("sweep-lambda", help="train one planner per lambda: the paper's Table I")
     training(sweep_cmd)
     sweep_cmd.add_argument("--lambdas", default=",".join(str(v) for v in PAPER_LAMBDAS))
@@ -328,6 +335,15 @@ def _ship(args: argparse.Namespace) -> int:
     print(f"wrote {done.path} ({done.size / 1e6:.2f} MB) and {done.card}; sha256 {done.sha256}")
     if args.name in shipped.SHIPPED and shipped.SHIPPED[args.name].sha256 != done.sha256:
         print(f"record it in osvp/shipped/__init__.py: ShippedPlanner(name={args.name!r}, sha256={done.sha256!r})")
+    return 0
+
+
+def _soup(args: argparse.Namespace) -> int:
+    from osvp.soup import make_soup
+    from osvp.train import file_sha256
+
+    out = make_soup(args.checkpoints, args.out)
+    print(f"wrote {out}: the mean of {len(args.checkpoints)} checkpoints' weights; sha256 {file_sha256(out)}")
     return 0
 
 

@@ -18,11 +18,20 @@ recipe() {  # the osvp train arguments of a run, by name
     scvp-nb-8k)    echo "${train_none[*]} --network scvp --target near_best --steps 8000" ;;
     nbvnet-nb-cb5-8k) echo "${train_none[*]} --network nbvnet --target near_best --steps 8000 --case-balance 0.5" ;;
     scvp-nb-cb5-8k)   echo "${train_none[*]} --network scvp --target near_best --steps 8000 --case-balance 0.5" ;;
+    # shipped:nbv's recipe at a second seed (the seeds' spread of its share) and at the paper's network
+    # size (fully connected widths 1500 / 500 / 100 against the small preset's 512 / 256)
+    scvp-nb-8k-s1)    echo "${train_none[*]} --network scvp --target near_best --steps 8000 --seed 1" ;;
+    scvp-nb-8k-paper) echo "${train_none[*]} --network scvp --target near_best --steps 8000 --preset paper" ;;
+    # the same steps on the training objects imaged at 16 rotations instead of 8 (datasets.sh real-train-none-r16)
+    scvp-nb-8k-r16)   echo "--data $work/real-train-none-r16 --val-data $work/real-val-none --network scvp --target near_best --steps 8000" ;;
     # shipped:nbv (scvp-nb-8k, its best epoch the last) trained 8,000 steps more at half the learning rate
     scvp-nb-8k-more)  echo "${train_none[*]} --network scvp --target near_best --steps 8000 --lr 0.0005 --init $here/../../../osvp/src/osvp/shipped/nbv.pt" ;;
     # one-shot planners: partial cover at tau 0.9 (label-margin.md's best one-shot objective)
     pcnbv-nb-8k)   echo "${train_none[*]} --network osvp --target near_best --source observed --steps 8000" ;;
     oneshot-mc-8k) echo "--data $work/real-train-none-tau90 --val-data $work/real-val-none-tau90 --network osvp --target mincover --steps 8000" ;;
+    # the same labels and steps for SCVP's own grid network (with the view state): the grid networks are the
+    # ones that generalised as next-best-view planners
+    scvp-mc-8k)    echo "--data $work/real-train-none-tau90 --val-data $work/real-val-none-tau90 --network scvp --target mincover --steps 8000" ;;
     # the real-object learning curve (scvp near_best, the shipped nbv's recipe, at 1,000 steps): 25, 50,
     # 100 and all 171 training objects (--max-objects draws nested seeded subsets), from random weights
     # and fine-tuned from the planner pre-trained on the 1,000 synthetic objects
