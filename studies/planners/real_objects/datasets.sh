@@ -1,8 +1,6 @@
 #!/usr/bin/env bash
 # The datasets of issue 49, made with the service itself into WORK (default ../real-work beside the checkout):
 #   real-{train,val}-none  the split's training and validation objects, 8 rotations, refiner none, default voxel
-#   real-train-none-r16    the training objects at 16 rotations (view_symmetry.py: no turn of a stored
-#                          sample keeps its labels true, so more rotations are the augmentation)
 #   synth200-none          the first 200 of 1,000 synthetic objects (seed 23), 2 rotations, refiner none:
 #                          the learning curve's pre-training (runs.sh scvp-nb-synth200-2k)
 #   synth1000-none         all 1,000 of them (scvp-nb-synth-4k)
@@ -24,9 +22,6 @@ printf 'refiner = "none"\nrotations = 2\n' > "$work/synth.toml"
 submit() { echo "== $(date -u +%FT%TZ) $*"; datagen submit "$@"; }
 submit --objects "$here/train.txt" --config "$work/none.toml" --out "$work/real-train-none"
 submit --objects "$here/val.txt" --config "$work/none.toml" --out "$work/real-val-none"
-# the label-true augmentation: the training objects imaged at 16 rotations (22.5 degrees apart), runs.sh scvp-nb-8k-r16
-printf 'refiner = "none"\nrotations = 16\n' > "$work/none-r16.toml"
-submit --objects "$here/train.txt" --config "$work/none-r16.toml" --out "$work/real-train-none-r16"
 [ -f "$work/synth/objects.txt" ] || datagen objects synth --count 1000 --seed 23 --out "$work/synth"
 grep -v '^#' "$work/synth/objects.txt" | head -200 > "$work/synth/objects-200.txt"  # the learning curve's pre-training
 submit --objects "$work/synth/objects-200.txt" --config "$work/synth.toml" --out "$work/synth200-none"

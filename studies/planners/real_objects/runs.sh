@@ -22,8 +22,6 @@ recipe() {  # the osvp train arguments of a run, by name
     # size (fully connected widths 1500 / 500 / 100 against the small preset's 512 / 256)
     scvp-nb-8k-s1)    echo "${train_none[*]} --network scvp --target near_best --steps 8000 --seed 1" ;;
     scvp-nb-8k-paper) echo "${train_none[*]} --network scvp --target near_best --steps 8000 --preset paper" ;;
-    # the same steps on the training objects imaged at 16 rotations instead of 8 (datasets.sh real-train-none-r16)
-    scvp-nb-8k-r16)   echo "--data $work/real-train-none-r16 --val-data $work/real-val-none --network scvp --target near_best --steps 8000" ;;
     # shipped:nbv (scvp-nb-8k, its best epoch the last) trained 8,000 steps more at half the learning rate
     scvp-nb-8k-more)  echo "${train_none[*]} --network scvp --target near_best --steps 8000 --lr 0.0005 --init $here/../../../osvp/src/osvp/shipped/nbv.pt" ;;
     # one-shot planners: partial cover at tau 0.9 (label-margin.md's best one-shot objective)

@@ -77,7 +77,7 @@ register_shipped(
     ShippedPlanner(
         name="oneshot",
         file="oneshot.pt",
-        sha256="3016d3bfbf172454e0f383236cd5ef521848ff5ca3897e688e3a3ae6e4c779d3",
+        sha256="f8675a27b053a88812729827261701c84e29be266631fb3b56134a1c6d958a5f",
         summary="the one-shot planner, its views taken at once",
     )
 )
