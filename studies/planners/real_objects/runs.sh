@@ -30,6 +30,8 @@ recipe() {  # the osvp train arguments of a run, by name
     # the same labels and steps for SCVP's own grid network (with the view state): the grid networks are the
     # ones that generalised as next-best-view planners
     scvp-mc-8k)    echo "--data $work/real-train-none-tau90 --val-data $work/real-val-none-tau90 --network scvp --target mincover --steps 8000" ;;
+    # the same, fine-tuned from shipped:nbv (the same network and preset, trained for the next view): pre-training for the one-shot family
+    scvp-mc-8k-init) echo "--data $work/real-train-none-tau90 --val-data $work/real-val-none-tau90 --network scvp --target mincover --steps 8000 --init $here/../../../osvp/src/osvp/shipped/nbv.pt" ;;
     # the real-object learning curve (scvp near_best, the shipped nbv's recipe, at 1,000 steps): 25, 50,
     # 100 and all 171 training objects (--max-objects draws nested seeded subsets), from random weights
     # and fine-tuned from the planner pre-trained on the 1,000 synthetic objects
