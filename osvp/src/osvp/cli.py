@@ -117,6 +117,20 @@ def _parser() -> argparse.ArgumentParser:
             "meets after its first views",
         )
         sub.add_argument(
+            "--mix-data",
+            default=None,
+            metavar="URL",
+            help="draw --mix-fraction of every epoch's training samples from this dataset too (of the same view "
+            "space, schema and voxel: synthetic objects beside real ones); validation never mixes",
+        )
+        sub.add_argument(
+            "--mix-fraction",
+            type=float,
+            default=0.0,
+            metavar="F",
+            help="the share of each epoch's samples drawn from --mix-data, in (0, 1); --steps count them too",
+        )
+        sub.add_argument(
             "--init",
             type=Path,
             default=None,
@@ -280,6 +294,8 @@ def _options(args: argparse.Namespace, out: Path, lambda_: float, resume: bool) 
         val_data=args.val_data,
         init=args.init,
         case_balance=args.case_balance,
+        mix_data=args.mix_data,
+        mix_fraction=args.mix_fraction,
     )
 
 

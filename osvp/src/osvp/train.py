@@ -20,6 +20,9 @@ epoch reads the training rows shard by shard in ``workers`` DataLoader workers t
 of ``shuffle_buffer`` samples, in an order fixed by (seed, epoch, workers), each cloud resampled from
 the same stream (seed, epoch, row) as in memory; validation stays in memory, on at most ``val_cap`` of
 the validation rows (a seeded draw). A streamed run resumed from ``last.pt`` continues exactly as well.
+
+A run held in memory may draw a share of every epoch from a second dataset (``mix_data``,
+`osvp.mixing`); ``steps`` then count the mixed-in samples too.
 """
 
 from __future__ import annotations
@@ -57,6 +60,7 @@ from osvp.data import (
 from osvp.decoding import PAPER_THRESHOLD, Decoding
 from osvp.loss import TARGET_REGISTRY, is_next_view, target_loss, targets
 from osvp.metrics import decoded_metrics, tune_threshold
+from osvp.mixing import MIX_STREAM, Mixture, check_fraction, check_mixable, mixed_batches
 from osvp.stream import (
     MEMORY_LIMIT_GB,
     VAL_CAP,
@@ -140,6 +144,11 @@ class TrainOptions:
     (with replacement; as many as there are): 0 takes every sample once (the default), 1 weighs every
     case size alike. The long-tail cases hold few large cases, so a next-best-view planner sees few of
     the situations it meets after its first views."""
+    mix_data: str | None = None
+    """Draw ``mix_fraction`` of every epoch's training samples from this dataset (`osvp.mixing`):
+    synthetic objects beside real ones, say. Validation stays on the run's own validation rows."""
+    mix_fraction: float = 0.0
+    """The mixed-in share of an epoch's samples, in (0, 1), with ``mix_data``."""
 
     def for_samples(self, train_samples: int) -> TrainOptions:
         """The options for a training set of ``train_samples``: with `steps`, as many epochs as give
@@ -201,6 +210,12 @@ class TrainOptions:
             raise DataError(f"--case-balance {self.case_balance}: give a power from 0 (every sample once) to 1")
         if self.case_balance and self.stream:
             raise DataError("--case-balance draws samples from memory; train without --stream")
+        if self.mix_data is not None:
+            check_fraction(self.mix_fraction)
+            if self.stream:
+                raise DataError("--mix-data draws samples from memory; train without --stream")
+        elif self.mix_fraction:
+            raise DataError(f"--mix-fraction {self.mix_fraction} needs --mix-data: the dataset to draw that share from")
         if self.init is not None and self.resume:
             raise DataError("--init starts a new run from a checkpoint's weights; --resume continues one: give one")
         if self.device.startswith("cuda") and not torch.cuda.is_available():
@@ -217,7 +232,13 @@ class TrainOptions:
             data.pop("network")
         for free in ("out", "resume", "epochs", "device", "memory_limit_gb", "fit_rows"):
             data.pop(free)
-        for added, unset in (("val_data", None), ("init", None), ("case_balance", 0.0)):
+        for added, unset in (
+            ("val_data", None),
+            ("init", None),
+            ("case_balance", 0.0),
+            ("mix_data", None),
+            ("mix_fraction", 0.0),
+        ):
             if data[added] == unset:  # what runs before these options existed recorded
                 data.pop(added)
         if self.init is not None:  # the weights it started from, by content: a moved file resumes alike
@@ -325,6 +346,8 @@ def train(
     options = replace(options, stream=streaming)
     if streaming and options.case_balance:
         raise DataError("--case-balance draws samples from memory, but this dataset is streamed; raise --memory-limit")
+    if streaming and options.mix_data is not None:
+        raise DataError("--mix-data draws samples from memory, but this dataset is streamed; raise --memory-limit")
     if streaming:
         dataset = open_dataset(options.data, needs)
         bank = index_bank(dataset, options.source)
@@ -364,7 +387,9 @@ def train(
         train_rows, val_rows = run_rows(bank, options)
         if options.val_data is not None:
             val_rows = np.arange(len(val_bank), dtype=np.int64)
-    options = options.for_samples(len(train_rows))
+    mixture = _mixture(options, bank, needs, fields)
+    epoch_samples = len(train_rows) + (mixture.count(len(train_rows)) if mixture is not None else 0)
+    options = options.for_samples(epoch_samples)
     fit = fit_probe(dataset, bank, train_rows, options, fields)
     train_objects = len({bank.object_ids[i] for i in train_rows.tolist()})
     val_covers = val_bank.covers.take(val_rows) if val_bank.covers is not None else None
@@ -374,8 +399,11 @@ def train(
     best_score = max((row[metric] for row in history), default=-1.0)
     for epoch in range(start, options.epochs):
         started = time.perf_counter()
-        batches = streamed.epoch(epoch) if streamed is not None else _bank_batches(bank, train_rows, options, epoch)
-        train_loss, loading = _train_epoch(network, optimiser, batches, len(train_rows), options, epoch, on_batch)
+        if streamed is not None:
+            batches = streamed.epoch(epoch)
+        else:
+            batches = _bank_batches(bank, train_rows, options, epoch, mixture)
+        train_loss, loading = _train_epoch(network, optimiser, batches, epoch_samples, options, epoch, on_batch)
         scheduler.step()
         spent = time.perf_counter() - started
         val_loss, probabilities = predict_rows(network, val_bank, val_rows, options.num_points, options)
@@ -388,8 +416,8 @@ def train(
             "val_loss": val_loss,
             **figures,
             "seconds": spent,
-            "train_samples_per_s": len(train_rows) / spent,
-            "loader_samples_per_s": len(train_rows) / loading if loading > 0 else float("inf"),
+            "train_samples_per_s": epoch_samples / spent,
+            "loader_samples_per_s": epoch_samples / loading if loading > 0 else float("inf"),
         }
         history.append(row)
         improved = row[metric] > best_score
@@ -559,14 +587,23 @@ def epoch_order(
     return rng.choice(rows, size=len(rows), replace=True, p=weights / weights.sum())
 
 
-def _bank_batches(bank: SampleBank, rows: npt.NDArray[np.int64], options: TrainOptions, epoch: int) -> Iterator[Batch]:
+def _bank_batches(
+    bank: SampleBank, rows: npt.NDArray[np.int64], options: TrainOptions, epoch: int, mixture: Mixture | None = None
+) -> Iterator[Batch]:
     """An epoch's batches from memory: the rows in a permutation drawn from (seed, epoch, 1), or with
-    ``case_balance`` as many rows drawn with replacement, weighted by their case size's rarity."""
+    ``case_balance`` as many rows drawn with replacement, weighted by their case size's rarity; with a
+    ``mixture``, its rows placed among them (`osvp.mixing`)."""
     sizes = bank.view_state[rows].sum(axis=1).astype(np.int64)
     order = epoch_order(
         rows, sizes, np.random.default_rng(np.random.SeedSequence([options.seed, epoch, 1])), options.case_balance
     )
     num_points = options.num_points
+    if mixture is not None:
+        rng = np.random.default_rng(np.random.SeedSequence([options.seed, epoch, MIX_STREAM]))
+        yield from mixed_batches(
+            bank, order, mixture, rng, options.batch_size, num_points, options.seed, epoch, options.reads_covers
+        )
+        return
     for start in range(0, len(order), options.batch_size):
         rows_now = order[start : start + options.batch_size]
         yield bank.batch(rows_now, num_points, options.seed, epoch, with_covers=options.reads_covers)
@@ -604,6 +641,16 @@ def _train_epoch(
     return total / max(seen, 1), loading
 
 
+def _mixture(options: TrainOptions, bank: SampleBank, needs: str | None, fields: Sequence[str]) -> Mixture | None:
+    """The mixed-in dataset of ``options.mix_data`` in memory, refused in one line when its samples
+    do not match the training data's."""
+    if options.mix_data is None:
+        return None
+    mixed = SampleBank.load(options.mix_data, options.source, covers_for=needs, fields=fields)
+    check_mixable(bank, mixed, needs)
+    return Mixture(mixed, options.mix_fraction)
+
+
 def _start(
     options: TrainOptions, bank: SampleBank, num_points: int
 ) -> tuple[nn.Module, torch.optim.Optimizer, Any, int, list[dict[str, float]], int]:
@@ -626,7 +673,8 @@ def _start(
         if stored.get("options") != options.identity() or stored.get("config_hash") != bank.config_hash:
             raise CheckpointError(
                 f"{last}: was trained with other options or data; resume with the same --data, --network, --preset, "
-                "--lambda, --target, --batch-size, --seed, --split, --max-objects and --sample-fraction, streaming "
+                "--lambda, --target, --batch-size, --seed, --split, --max-objects, --sample-fraction and --mix-data / "
+                "--mix-fraction, streaming "
                 "as it did (with the same --workers, --shuffle-buffer and --val-cap), or start a new --out"
             )
         network = checkpoint.network(options.device).train()

@@ -3,7 +3,9 @@
 #   real-{train,val}-none  the split's training and validation objects, 8 rotations, refiner none, default voxel
 #   synth200-none          the first 200 of 1,000 synthetic objects (seed 23), 2 rotations, refiner none:
 #                          the learning curve's pre-training (runs.sh scvp-nb-synth200-2k)
-#   synth1000-none         all 1,000 of them (scvp-nb-synth-4k)
+#   synth1000-none         all 1,000 of them (scvp-nb-synth-4k; mixed into the real ones by scvp-nb-8k-mix25)
+#   real-train-none-r16    the training objects at 16 rotations, refiner none: the label-true augmentation
+#                          (the 32 views have no symmetry, view_symmetry.py), for scvp-nb-8k-r16
 #   real-train-poco        the training objects at the paper's settings (the default config: POCO, 8
 #                          rotations, default voxel); beside real-train-none, the refinement comparison
 #                          (the paper's cover labels of the same cases, with and without POCO)
@@ -26,6 +28,8 @@ submit --objects "$here/val.txt" --config "$work/none.toml" --out "$work/real-va
 grep -v '^#' "$work/synth/objects.txt" | head -200 > "$work/synth/objects-200.txt"  # the learning curve's pre-training
 submit --objects "$work/synth/objects-200.txt" --config "$work/synth.toml" --out "$work/synth200-none"
 submit --objects "$work/synth/objects.txt" --config "$work/synth.toml" --out "$work/synth1000-none"
+printf 'refiner = "none"\nrotations = 16\n' > "$work/none-r16.toml"
+submit --objects "$here/train.txt" --config "$work/none-r16.toml" --out "$work/real-train-none-r16"
 submit --objects "$here/train.txt" --out "$work/real-train-poco"
 datagen shards card "$work/real-train-poco" --objects "$here/train.txt"  # its card: the corpus's sources and licences
 relabel() { datagen shards relabel "$work/$1" --out "$work/$2" "${@:3}"; }  # resumes a stopped relabel
