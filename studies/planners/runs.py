@@ -133,4 +133,5 @@ def pm(row: dict[str, Any], key: str, decimals: int = 2) -> str:
 def write_markdown(path: Path, module: str, argv: Sequence[str] | None, lines: Sequence[str]) -> None:
     """``lines`` as a Markdown file headed by the command that made it (``python -m MODULE ARGS``)."""
     command = f"python -m {module} " + " ".join(argv if argv is not None else sys.argv[1:])
+    path.parent.mkdir(parents=True, exist_ok=True)  # an hour's judgement must not die on a missing folder
     path.write_text("\n".join([f"Made by `{command}`.", "", *lines, ""]))
