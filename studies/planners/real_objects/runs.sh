@@ -26,6 +26,7 @@ recipe() {  # the osvp train arguments of a run, by name
     # quarter of every epoch drawn from the 1,000 synthetic objects (osvp train --mix-data)
     scvp-nb-8k-r16)   echo "--data $work/real-train-none-r16 --val-data $work/real-val-none --network scvp --target near_best --steps 8000" ;;
     scvp-nb-8k-mix25) echo "${train_none[*]} --network scvp --target near_best --steps 8000 --mix-data $work/synth1000-none --mix-fraction 0.25" ;;
+    scvp-nb-8k-mix10) echo "${train_none[*]} --network scvp --target near_best --steps 8000 --mix-data $work/synth1000-none --mix-fraction 0.1" ;;
     # shipped:nbv (scvp-nb-8k, its best epoch the last) trained 8,000 steps more at half the learning rate
     scvp-nb-8k-more)  echo "${train_none[*]} --network scvp --target near_best --steps 8000 --lr 0.0005 --init $here/../../../osvp/src/osvp/shipped/nbv.pt" ;;
     # one-shot planners: partial cover at tau 0.9 (label-margin.md's best one-shot objective)
