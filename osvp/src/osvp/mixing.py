@@ -18,7 +18,7 @@ import numpy as np
 import numpy.typing as npt
 import torch
 
-from osvp.data import Batch, DataError, SampleBank, require_covers
+from osvp.data import Batch, DataError, SampleBank
 
 MIX_STREAM = 0x313C5
 """Tag of the mixing streams (seed, epoch, tag), apart from the epochs' (seed, epoch, k) and the subsets'."""
@@ -52,8 +52,9 @@ def mixed_seed(seed: int) -> int:
     return int(np.random.SeedSequence([seed, MIX_STREAM]).generate_state(1, dtype=np.uint32)[0])
 
 
-def check_mixable(bank: SampleBank, mixed: SampleBank, covers_for: str | None) -> None:
-    """Refuse, in one line, a mixed-in dataset whose samples do not mean what the run's own do."""
+def check_mixable(bank: SampleBank, mixed: SampleBank) -> None:
+    """Refuse, in one line, a mixed-in dataset whose samples do not mean what the run's own do (its
+    covers, where the target needs them, were checked as it loaded: `SampleBank.load`'s ``covers_for``)."""
     url = mixed.url
     for what, own, theirs in (
         ("views", bank.num_views, mixed.num_views),
@@ -65,8 +66,6 @@ def check_mixable(bank: SampleBank, mixed: SampleBank, covers_for: str | None) -
                 f"{url}: its {what} is {theirs}, the training data's {own}; mix in a dataset made with the same "
                 "view space, schema and voxel"
             )
-    if covers_for is not None:
-        require_covers(mixed, covers_for)
 
 
 def epoch_plan(

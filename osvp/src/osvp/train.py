@@ -647,7 +647,7 @@ def _mixture(options: TrainOptions, bank: SampleBank, needs: str | None, fields:
     if options.mix_data is None:
         return None
     mixed = SampleBank.load(options.mix_data, options.source, covers_for=needs, fields=fields)
-    check_mixable(bank, mixed, needs)
+    check_mixable(bank, mixed)
     return Mixture(mixed, options.mix_fraction)
 
 
